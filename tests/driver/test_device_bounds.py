@@ -30,7 +30,6 @@ import time
 import tty
 
 import numpy as np
-import psutil
 import pytest
 
 from fpscan.driver.acquire import acquire
@@ -40,8 +39,9 @@ from fpscan.driver.host import MAX_RESETS, DeviceFault, DeviceTimeout, Scanner
 from fpscan.driver.scanfile import ScanFile, read_scan
 from fpscan.driver.transport import THREAD_QUEUE_BYTES
 from tests.driver.driver_helpers import grid_plan
-from tests.driver.test_device_faults import GROWTH, MB
+from tests.driver.test_device_faults import GROWTH
 from tests.driver.test_link import assert_matches_record, make_sim
+from tests.rss import MB, ROOT, RssWatch
 from tests.waits import HANG_S
 
 pytestmark = [pytest.mark.timeout(300)]
@@ -156,20 +156,17 @@ FLOOD = 256 * MB  #: bytes the flooding device sends while the host is not readi
 FLOOD_HOST = r"""
 import json, sys
 from fpscan.driver.host import DriverError, Scanner
-
-def rss():
-    with open("/proc/self/status") as fh:
-        return next(int(l.split()[1]) * 1024 for l in fh if l.startswith("VmRSS"))
+from tests.rss import resident
 
 with Scanner(sys.argv[1], reader="thread") as sc:
-    print("BASE", rss(), flush=True)
+    print("BASE", resident(), flush=True)
     sys.stdin.readline()  # the device floods the port meanwhile; nobody reads it here
     try:
         sc.query("*IDN?", timeout=2.0)
         outcome = {"error": None}
     except DriverError as exc:
         outcome = {"error": type(exc).__name__, "message": str(exc)}
-    outcome["after"] = rss()
+    outcome["after"] = resident()
 print("RESULT", json.dumps(outcome), flush=True)
 """
 
@@ -182,7 +179,7 @@ def test_a_flood_on_the_thread_reader_ends_as_a_lost_device_in_bounded_memory(tm
     assert THREAD_QUEUE_BYTES + 8 * MB < GROWTH
     master, slave = pty.openpty()
     tty.setraw(slave)
-    proc = subprocess.Popen([sys.executable, "-c", FLOOD_HOST, os.ttyname(slave)], stdin=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-c", FLOOD_HOST, os.ttyname(slave)], cwd=ROOT, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: queue.Queue = queue.Queue()
     reader = threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout], daemon=True)  # type: ignore[union-attr]
@@ -199,6 +196,7 @@ def test_a_flood_on_the_thread_reader_ends_as_a_lost_device_in_bounded_memory(tm
             pass
         written.set()
 
+    watch = None
     try:
         deadline = time.monotonic() + HANG_S
         first = ""
@@ -209,17 +207,10 @@ def test_a_flood_on_the_thread_reader_ends_as_a_lost_device_in_bounded_memory(tm
                 assert proc.poll() is None, proc.stderr.read()[-3000:]  # type: ignore[union-attr]
                 assert time.monotonic() < deadline, "the host did not start"
         assert first.startswith("BASE"), first
-        base = peak = int(first.split()[1])
-        child = psutil.Process(proc.pid)
+        watch = RssWatch(proc.pid, base=int(first.split()[1]), limit=GROWTH, what="the host").start()
         threading.Thread(target=flood, daemon=True).start()
         go = False
         while proc.poll() is None:
-            rss = child.memory_info().rss
-            peak = max(peak, rss)
-            if rss - base > GROWTH:
-                proc.kill()
-                pytest.fail(f"the host's resident size grew from {base / MB:.0f} MB to {rss / MB:.0f} MB while "
-                            f"the device flooded it ({sent[0] / MB:.0f} MB sent; ended at +50 MB)")
             if written.is_set() and not go:
                 assert sent[0] == FLOOD
                 proc.stdin.write("go\n")  # type: ignore[union-attr]
@@ -230,6 +221,8 @@ def test_a_flood_on_the_thread_reader_ends_as_a_lost_device_in_bounded_memory(tm
                 proc.wait(timeout=0.02)
             except subprocess.TimeoutExpired:
                 pass
+        watch.stop()
+        watch.check(f"while the device flooded it ({sent[0] / MB:.0f} MB sent)")
         reader.join(timeout=HANG_S)
         out = []
         while not lines.empty():
@@ -237,12 +230,14 @@ def test_a_flood_on_the_thread_reader_ends_as_a_lost_device_in_bounded_memory(tm
         result = [line for line in out if line.startswith("RESULT")]
         assert proc.returncode == 0 and result, (proc.returncode, out, proc.stderr.read()[-3000:])  # type: ignore[union-attr]
         report = json.loads(result[-1].split(" ", 1)[1])
-        print(f"host RSS: {base / MB:.1f} MB before the flood, peak {peak / MB:.1f} MB, "
+        print(f"host RSS: {watch.base / MB:.1f} MB before the flood, peak {watch.peak / MB:.1f} MB, "
               f"{report['after'] / MB:.1f} MB after it")
         assert report["error"] == "DriverError", report
         assert "(a flood)" in report["message"] and "bytes were discarded" in report["message"], report
-        assert report["after"] - base < GROWTH
+        assert report["after"] - watch.base < GROWTH
     finally:
+        if watch is not None:
+            watch.stop()
         if proc.poll() is None:
             proc.kill()
         proc.wait(timeout=HANG_S)

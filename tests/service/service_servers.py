@@ -97,97 +97,9 @@ def has_recon() -> bool:
 needs_recon = pytest.mark.skipif(not has_recon(), reason="fpscan.service.recon not available")
 
 
-
-
 def wait_gone(procs, timeout: float = HANG_S) -> list:
     """Wait until the psutil processes ``procs`` have exited; returns those still alive."""
     import psutil
 
     _, alive = psutil.wait_procs(procs, timeout=timeout)
     return alive
-
-
-def session_processes(sid: int) -> list:
-    """The processes of session ``sid`` (psutil objects): a server started by
-    ``start_service`` leads its own session, and every process it starts stays in it, also
-    once the server is gone and they are the init process's children."""
-    import os
-
-    import psutil
-
-    out = []
-    for p in psutil.process_iter():
-        try:
-            if os.getsid(p.pid) == sid:
-                out.append(p)
-        except (ProcessLookupError, PermissionError):
-            pass
-    return out
-
-
-class PeakRss:
-    """The largest resident-set growth of a server's processes while the block runs
-    (``with PeakRss(server_pid) as peak: ...; peak.growth``): every process of its session,
-    sampled every few ms by a thread, by its peak resident set (``VmHWM`` of
-    ``/proc/PID/status``: a peak between two samples is not missed while the process lives);
-    a process that was there before counts from its resident set then (its peak reset,
-    ``/proc/PID/clear_refs``), one started meanwhile (an import child, forked from the fork
-    server) from its parent's. ``growth`` (bytes) and ``peaks`` (pid -> bytes) after the block."""
-
-    def __init__(self, sid: int, period_s: float = 0.003):
-        self.sid, self.period_s = sid, period_s
-        self.base: dict[int, int] = {}
-        self.parent: dict[int, int] = {}
-        self.peaks: dict[int, int] = {}
-        self.growth = 0
-
-    @staticmethod
-    def _status(pid: int) -> dict[str, int]:
-        out = {}
-        with open(f"/proc/{pid}/status") as fh:
-            for line in fh:
-                if line.startswith(("VmRSS:", "VmHWM:", "PPid:")):
-                    key, value = line.split(":", 1)
-                    out[key] = int(value.split()[0]) * (1024 if key != "PPid" else 1)
-        return out
-
-    def _sample(self) -> None:
-        for p in session_processes(self.sid):
-            try:
-                st = self._status(p.pid)
-            except OSError:
-                continue
-            self.parent.setdefault(p.pid, st.get("PPid", 0))
-            self.peaks[p.pid] = max(self.peaks.get(p.pid, 0), st.get("VmHWM", 0), st.get("VmRSS", 0))
-
-    def __enter__(self) -> PeakRss:
-        import threading
-
-        for p in session_processes(self.sid):
-            try:
-                with open(f"/proc/{p.pid}/clear_refs", "w") as fh:
-                    fh.write("5")  # reset the peak resident set to the current one
-            except OSError:
-                pass
-            try:
-                self.base[p.pid] = self._status(p.pid)["VmRSS"]
-            except (OSError, KeyError):
-                pass
-        self._stop = threading.Event()
-
-        def run() -> None:
-            while not self._stop.is_set():
-                self._sample()
-                self._stop.wait(self.period_s)
-
-        self._thread = threading.Thread(target=run, daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        self._sample()
-        grown = [peak - self.base.get(pid, self.base.get(self.parent.get(pid, 0), 0))
-                 for pid, peak in self.peaks.items()]
-        self.growth = max([0, *grown])

@@ -2,8 +2,8 @@
 bounds:
 
 - memory: 9 concurrent exports (OME-TIFF, OME-Zarr, npz) of three 128 MiB result volumes keep
-  the server process's resident memory (``/proc``, psutil) under +300 MB: the builds take
-  ``export_workers`` turns, the rest wait, and each streams its volume in slabs;
+  the server process's peak resident memory (``/proc``, ``tests.rss.RssWatch``) under +300 MB:
+  the builds take ``export_workers`` turns, the rest wait, and each streams its volume in slabs;
 - a full disk (a real 64 MiB tmpfs, filled but a slack): every export answers 507 with the free
   bytes, never 500 (OME-TIFF's writer, NumPy's ``tofile``, raises its short write without an
   errno), the log names the exception, and no temporary file or folder is left at any depth;
@@ -13,8 +13,8 @@ bounds:
   replaced by a link (to a file outside the data folder) is refused with 404, never served,
   and the refusal logged once per path.
 
-Oracles: the server process's RSS read by psutil; the files on disk (``os.walk``); the HTTP
-answers; the server's log file.
+Oracles: the server process's peak RSS read from ``/proc``; the files on disk (``os.walk``); the
+HTTP answers; the server's log file.
 """
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ import time
 import numpy as np
 import pytest
 
+from tests.rss import RssWatch
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.service.small_disks import fill, tmpfs
 from tests.waits import HANG_S
@@ -63,8 +64,6 @@ def _temporaries(top) -> list[str]:
 @pytest.mark.slow
 @needs_recon
 def test_nine_concurrent_exports_of_128_mib_volumes_keep_the_server_under_300_mb(tmp_path):
-    import psutil
-
     from fpscan.service.formats.result import write_volume
 
     data = tmp_path / "data"
@@ -81,16 +80,6 @@ def test_nine_concurrent_exports_of_128_mib_volumes_keep_the_server_under_300_mb
             write_volume(_result_folder(data, jid) / "volume.h5", p0, np.arange(n_z) * 1e-5,
                          np.arange(n_x) * 1e-4, np.arange(n_y) * 1e-4, method="ner", params={}, input_id=jid)
             del p0
-        server = psutil.Process(srv.service.pid)
-        before = server.memory_info().rss
-        peak = [before]
-        done = threading.Event()
-
-        def watch() -> None:
-            while not done.is_set():
-                peak[0] = max(peak[0], server.memory_info().rss)
-                done.wait(0.02)
-
         answers: list[tuple[str, int, int]] = []
         gate = threading.Barrier(9)
 
@@ -101,19 +90,16 @@ def test_nine_concurrent_exports_of_128_mib_volumes_keep_the_server_under_300_mb
                     size = sum(len(b) for b in resp.iter_bytes(1 << 20))
                     answers.append((fmt, resp.status_code, size))
 
-        watcher = threading.Thread(target=watch)
-        watcher.start()
         threads = [threading.Thread(target=fetch, args=(jid, fmt)) for jid in jobs
                    for fmt in ("ome-tiff", "ome-zarr", "npz")]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(HANG_S)
-        done.set()
-        watcher.join()
-        grew = (peak[0] - before) / 1e6
-        print(f"9 concurrent exports of 128 MiB volumes: server RSS {before / 1e6:.0f} MB before, peak "
-              f"{peak[0] / 1e6:.0f} MB (+{grew:.0f} MB); answers {sorted((f, s) for f, s, _ in answers)}")
+        with RssWatch(srv.service.pid) as watch:
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(HANG_S)
+        grew = watch.growth / 1e6
+        print(f"9 concurrent exports of 128 MiB volumes: server RSS {watch.base / 1e6:.0f} MB before, peak "
+              f"{watch.peak / 1e6:.0f} MB (+{grew:.0f} MB); answers {sorted((f, s) for f, s, _ in answers)}")
         assert len(answers) == 9 and all(s == 200 for _, s, _ in answers), answers
         assert all(size > 128 * MiB for fmt, _, size in answers if fmt in ("ome-tiff", "npz")), answers
         assert grew < 300, f"the server grew by {grew:.0f} MB"

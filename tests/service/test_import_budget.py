@@ -7,7 +7,7 @@ child's address space is capped at the stated limit itself
 Oracles: the files are written here byte by byte as an attacker would (MAT v5 elements with
 struct and zlib, ``tests.storage.mat_files``; HDF5 hard links with h5py); the server's and its
 children's resident sets are read from ``/proc`` while the upload is answered
-(``tests.service.service_servers.PeakRss``)."""
+(``tests.rss.RssWatch``)."""
 from __future__ import annotations
 
 import io
@@ -17,7 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.service.service_servers import PeakRss, Server
+from tests.rss import RssWatch
+from tests.service.service_servers import Server
 from tests.storage.mat_files import (
     mat5_compressed,
     mat5_double,
@@ -48,7 +49,9 @@ def budget_server(tmp_path_factory):
 
 def _upload(srv: Server, path, form: dict) -> tuple[object, int, float]:
     """POST the file; (response, the largest resident-set growth meanwhile, seconds)."""
-    with srv.client(timeout=300) as api, open(path, "rb") as fh, PeakRss(srv.service.pid) as peak:
+    # every 3 ms: an import child, forked from the fork server, may live for a few ms only
+    with srv.client(timeout=300) as api, open(path, "rb") as fh, \
+            RssWatch(session=srv.service.pid, period_s=0.003) as peak:
         t0 = time.perf_counter()
         r = api.post("/api/datasets", files={"file": (path.name, fh)}, data=form)
         took = time.perf_counter() - t0

@@ -4,7 +4,7 @@ resource tracker (today's main left all three, with parent 1, blocked for good).
 
 Oracle: the kernel's process table. A server started by ``start_service`` leads its own
 session and every process it starts stays in that session, also once the init process has
-adopted it (``tests.service.service_servers.session_processes``)."""
+adopted it (``tests.rss.session_processes``)."""
 from __future__ import annotations
 
 import io
@@ -18,7 +18,8 @@ import numpy as np
 import psutil
 import pytest
 
-from tests.service.service_servers import Server, session_processes
+from tests.rss import session_processes
+from tests.service.service_servers import Server
 from tests.waits import HANG_S
 
 KILLS = 20

@@ -17,11 +17,8 @@ from __future__ import annotations
 import http.server
 import io
 import json
-import os
 import re
 import secrets
-import shutil
-import tempfile
 import threading
 
 import pytest
@@ -29,7 +26,6 @@ import pytest
 from fpscan.clients.processes import Process, clean_env, fpscan_argv, free_port, start_service
 from tests.waits import HANG_S
 from tests.web.web_e2e_support import (
-    CHROMIUM_FLAGS,
     SCREENSHOTS,
     has_subcommand,
     open_page,
@@ -51,37 +47,14 @@ VIOLATIONS_SCRIPT = ("window.__violations = [];"
 
 
 @pytest.fixture(scope="module")
-def browser():
+def browser(start_chromium):
     """Headless Chromium (this module's own: other hosts unreachable, the network recorded):
     every request to a host other than loopback goes to a proxy on a closed port and fails."""
-    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium not installed (pip install -e '.[test]')")
-    from selenium.webdriver.chrome.service import Service
-
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver = shutil.which("chromedriver")
-    if not chromium or not driver:
-        pytest.skip("headless Chromium not available: install Debian's chromium and chromium-driver")
-    os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium Manager download anything
-    profile = tempfile.mkdtemp(prefix="fpscan-chromium-")
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for flag in CHROMIUM_FLAGS:
-        opts.add_argument(flag)
-    opts.add_argument(f"--user-data-dir={profile}")
-    opts.add_argument(f"--proxy-server=http://127.0.0.1:{free_port()}")  # nothing listens there
-    opts.add_argument("--proxy-bypass-list=127.0.0.1")  # loopback alone goes direct
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
-    try:
-        drv = webdriver.Chrome(options=opts, service=Service(executable_path=driver))
-    except Exception as exc:  # the browser cannot start here
-        shutil.rmtree(profile, ignore_errors=True)
-        pytest.skip(f"headless Chromium could not start: {exc}")
-    drv.set_page_load_timeout(HANG_S)
-    drv.set_script_timeout(HANG_S)
+    drv = start_chromium(extra_args=[f"--proxy-server=http://127.0.0.1:{free_port()}",  # nothing listens there
+                                     "--proxy-bypass-list=127.0.0.1"],  # loopback alone goes direct
+                         logs=("browser", "performance"))
     drv.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": VIOLATIONS_SCRIPT})
-    yield drv
-    drv.quit()
-    shutil.rmtree(profile, ignore_errors=True)
+    return drv
 
 
 @pytest.fixture(scope="module")
