@@ -38,13 +38,15 @@ MiB = 2**20
 
 
 def _result_job(c, shape=(64, 16, 16), seed: int = 1) -> str:
-    """A succeeded NER reconstruction of a random dataset; its id."""
+    """A succeeded NER reconstruction of a random dataset; its id. Its volume has ``shape``: n_t
+    rows of c·dt (30 µm at the default 1500 m/s) asked for, not the default depth grid."""
     buf = io.BytesIO()
     np.save(buf, np.random.default_rng(seed).standard_normal(shape).astype(np.float32))
     r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
                files={"file": (f"d{seed}.npy", buf.getvalue())})
     assert r.status_code == 201, r.text
-    r = c.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner"})
+    r = c.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner",
+                                              "params": {"n_z": shape[0], "dz": "30um"}})
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"])
     assert job["state"] == "succeeded", job
