@@ -768,6 +768,8 @@ class Eta:
         left: float
         if fitted is None and certain:  # no fall measured yet: at least to the first stop the rule can make
             left, self.basis = certain, "earliest stop"
+        elif fitted is None and it.armed_at is not None and it.tol is not None and it.tol > 0:
+            return None, 0.0  # the rule can stop now, its fall at λ not measured yet: the last figure counts down
         else:
             left = cap if fitted is None else min(max(fitted, certain), cap)
             self.basis = "iteration limit" if left >= cap else "stopping rule"
@@ -777,14 +779,17 @@ class Eta:
         """Iterations until the rule's value, falling as fitted, is below the tolerance; None
         where that cannot be told (no tolerance, too few values, a value that does not fall).
         The fit: log(value) against log(k) (a power law, as the image change of an accelerated
-        gradient method falls), over the last half of the iterations, those since the rule was
-        armed where there are `_FIT_MIN` of them (a value held over several iterations, the
-        largest of a window, counts once, at its first)."""
+        gradient method falls), over the last half of the iterations; where the stage says when
+        the rule can stop (``armed_at``: tv's λ still falls before it, and the values show λ's
+        fall rather than the solver's), over those since then only (a value held over several
+        iterations, the largest of a window, counts once, at its first)."""
         if it.tol is None or it.tol <= 0:
             return None
         recent = [(k, v, a) for k, v, a in self._rule if 2 * k >= it.k]
-        armed = [(k, v) for k, v, a in recent if a]
-        points = armed if len(armed) >= _FIT_MIN else [(k, v) for k, v, _ in recent]
+        if it.armed_at is not None:
+            points = [(k, v) for k, v, a in recent if a]
+        else:
+            points = [(k, v) for k, v, _ in recent]
         if len(points) < _FIT_MIN:
             return None
         xs = [math.log(k) for k, _ in points]
