@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, overload
 
 __all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "Forward", "forward", "DEFAULT_STAGE", "IterationStage",
-           "parse_iteration", "iteration_fields", "describe_iteration", "SETUP_STAGES", "stage_kind", "LOW_S", "Countdown", "Eta",
+           "parse_iteration", "iteration_fields", "stage_of", "describe_iteration", "SETUP_STAGES", "stage_kind", "LOW_S", "Countdown", "Eta",
            "Shown", "outcome"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
@@ -432,10 +432,10 @@ def parse_iteration(stage: Any) -> IterationStage | None:
 def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
-    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet) and,
-    while it cannot, ``stop_armed_at`` (the first iteration at which it can, where known in
-    advance) and, where the stage says what it waits for, ``stop_waits_for`` (the method's
-    words: tv's ``"λ has settled"``); ``{}`` for any other stage.
+    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet),
+    ``stop_armed_at`` (the first iteration at which it can, where known in advance) and, while
+    it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's words:
+    tv's ``"λ has settled"``); ``{}`` for any other stage. :func:`stage_of` reads them back.
 
     Parameters
     ----------
@@ -452,11 +452,45 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
         return {}
     fields: dict[str, Any] = {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name,
                               "stop_value": it.rule, "stop_tol": it.tol, "stop_armed": it.armed}
-    if not it.armed and it.armed_at is not None:
+    if it.armed_at is not None:
         fields["stop_armed_at"] = it.armed_at
     if not it.armed and it.waits_for:
         fields["stop_waits_for"] = it.waits_for
     return fields
+
+
+def stage_of(progress: Mapping[str, Any]) -> Any:
+    """A job progress's stage as a report gave it: an :class:`IterationStage` with the rule's
+    numbers where the progress holds :func:`iteration_fields`, else the stage itself, so that an
+    :class:`Eta` fed from a job's progress (the CLI's) estimates as the worker's does.
+
+    Parameters
+    ----------
+    progress : Mapping of str to object
+        A job's progress (``stage`` and, while an iterative method iterates, its fields).
+
+    Returns
+    -------
+    IterationStage or object
+        The stage with its numbers, or ``progress["stage"]`` (None where it has none).
+
+    Examples
+    --------
+    >>> s = stage_of({"stage": "iteration 7/100 (λ continuation 7/50)", **iteration_fields(
+    ...     IterationStage(7, 100, rule=0.02, tol=0.005, armed=False, armed_at=53))})
+    >>> s, s.k, s.rule, s.tol, s.armed, s.armed_at
+    ('iteration 7/100 (λ continuation 7/50)', 7, 0.02, 0.005, False, 53)
+    >>> stage_of({"stage": "writing"})
+    'writing'
+    """
+    stage = progress.get("stage")
+    k, n = progress.get("iteration"), progress.get("iterations_max")
+    if k is None or n is None:
+        return stage
+    return IterationStage(int(k), int(n), progress.get("stop_value"), progress.get("stop_tol"),
+                          rule_name=progress.get("stop_rule") or "image change", text=str(stage),
+                          armed=bool(progress.get("stop_armed", True)), waits_for=progress.get("stop_waits_for") or "",
+                          armed_at=progress.get("stop_armed_at"))
 
 
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
@@ -670,15 +704,15 @@ class Eta:
     14.0
     12.0
 
-    An image change falling as 0.5 / k² reaches the tolerance 1e-3 at iteration √500 ≈ 22.4,
-    long before the limit of 100:
+    An image change falling tenfold every 4 iterations reaches the tolerance 1e-3 at
+    iteration 12, long before the limit of 100:
 
     >>> t, eta = [0.0], Eta(clock=lambda: t[0])
-    >>> for k in range(1, 17):
+    >>> for k in range(1, 7):
     ...     t[0] = 2.0 * k
-    ...     left = eta(k / 100, IterationStage(k, 100, rule=0.5 / k**2, tol=1e-3))
-    >>> round(left, 1), eta.basis, eta.bound_iterations, round(eta.limit_s)  # 6.4 iterations of 2 s; at most 84
-    (12.7, 'stopping rule', 84, 168)
+    ...     left = eta(k / 100, IterationStage(k, 100, rule=10 ** (-k / 4), tol=1e-3))
+    >>> round(left), eta.basis, eta.bound_iterations, round(eta.limit_s)  # 6 iterations of 2 s; at most 94
+    (12, 'stopping rule', 94, 188)
 
     The same while the rule cannot stop the work before iteration 40 (tv's λ continuation):
     34 iterations are certain.
@@ -768,8 +802,6 @@ class Eta:
         left: float
         if fitted is None and certain:  # no fall measured yet: at least to the first stop the rule can make
             left, self.basis = certain, "earliest stop"
-        elif fitted is None and it.armed_at is not None and it.tol is not None and it.tol > 0:
-            return None, 0.0  # the rule can stop now, its fall at λ not measured yet: the last figure counts down
         else:
             left = cap if fitted is None else min(max(fitted, certain), cap)
             self.basis = "iteration limit" if left >= cap else "stopping rule"
@@ -778,38 +810,28 @@ class Eta:
     def _to_rule(self, it: IterationStage) -> float | None:
         """Iterations until the rule's value, falling as fitted, is below the tolerance; None
         where that cannot be told (no tolerance, too few values, a value that does not fall).
-        The fit: log(value) against log(k) (a power law, as the image change of an accelerated
-        gradient method falls), over the last half of the iterations; where the stage says when
-        the rule can stop (``armed_at``: tv's λ still falls before it, and the values show λ's
-        fall rather than the solver's), over those since then only (a value held over several
-        iterations, the largest of a window, counts once, at its first)."""
-        if it.tol is None or it.tol <= 0:
+        The fit: a straight line to log(value) over the last `_FIT` values (a geometric fall, as
+        a convergent solver's image change shows; a value held over several iterations, the
+        largest of a window, counts once, at its first)."""
+        if it.tol is None or it.tol <= 0 or len(self._rule) < _FIT_MIN:
             return None
-        recent = [(k, v, a) for k, v, a in self._rule if 2 * k >= it.k]
-        if it.armed_at is not None:
-            points = [(k, v) for k, v, a in recent if a]
-        else:
-            points = [(k, v) for k, v, _ in recent]
-        if len(points) < _FIT_MIN:
-            return None
-        xs = [math.log(k) for k, _ in points]
-        vs = [v for _, v in points]
-        x_mean, v_mean = sum(xs) / len(xs), sum(vs) / len(vs)
-        sxx = sum((x - x_mean) ** 2 for x in xs)
+        ks = [float(k) for k, _, _ in self._rule]
+        vs = [v for _, v, _ in self._rule]
+        k_mean, v_mean = sum(ks) / len(ks), sum(vs) / len(vs)
+        sxx = sum((k - k_mean) ** 2 for k in ks)
         if not sxx > 0:
             return None
-        slope = sum((x - x_mean) * (v - v_mean) for x, v in zip(xs, vs, strict=True)) / sxx
+        slope = sum((k - k_mean) * (v - v_mean) for k, v in zip(ks, vs, strict=True)) / sxx
         if not slope < 0:
             return None
-        now = v_mean + slope * (math.log(it.k) - x_mean)  # the fitted log value at k
-        # k_end = k (tol / value)^(1 / slope); in logs, capped so that exp cannot overflow
-        return max(it.k * (math.exp(min((math.log(it.tol) - now) / slope, 30.0)) - 1.0), 1.0)
+        now = v_mean + slope * (it.k - k_mean)  # the fitted log value at k
+        return max((math.log(it.tol) - now) / slope, 1.0)
 
 
 #: the fewest values the ETA's fit of the rule's fall takes
-_FIT_MIN = 4
-#: iterations of the rule's value the ETA keeps for its fit (the most recent)
-_FIT = 64
+_FIT_MIN = 3
+#: iterations of the rule's value the ETA's fit of its fall looks back over
+_FIT = 8
 
 
 @dataclass(frozen=True)

@@ -606,7 +606,9 @@ class ProgressBar:
             progress["fraction"] = frac
         now = time.monotonic()
         if progress.get("eta_s") is None and frac is not None:
-            progress["eta_s"] = self._eta(float(frac), progress.get("stage"))
+            from fpscan.service.progress import stage_of
+
+            progress["eta_s"] = self._eta(float(frac), stage_of(progress))  # with the rule's numbers, as the worker's
             if progress["eta_s"] is not None and self._eta.bound_iterations is not None:
                 progress.update(iterations_left_max=self._eta.bound_iterations, eta_max_s=self._eta.limit_s,
                                 eta_basis=self._eta.basis)

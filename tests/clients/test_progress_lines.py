@@ -187,29 +187,29 @@ def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
 
 
 def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit():
-    """An image change falling as a power of k (0.5 / k², as an accelerated gradient method's
-    does) reaches the tolerance at an iteration the oracle computes ((0.5 / tol)^(1/2)); the ETA
-    is that many iterations x the measured time per iteration, labelled an estimate, with the
-    iterations left to the iteration limit as its bound; the line shows the tolerance (also
-    while λ falls, with the iteration from which the rule can stop)."""
+    """An image change falling geometrically (tenfold every 5 iterations) reaches
+    the tolerance at an iteration the oracle computes (log(tol/value)/log(q)); the ETA is that
+    many iterations x the measured time per iteration, labelled an estimate, with the iterations
+    left to the iteration limit as its bound; the line shows the tolerance (also while λ falls,
+    with the iteration from which the rule can stop)."""
     import math
 
     from fpscan.clients.cli.common import describe_progress
     from fpscan.service.progress import Eta, IterationStage, iteration_fields
 
-    now, n, tol = [0.0], 100, 1e-3
+    now, n, tol, q = [0.0], 100, 1e-3, 10 ** (-1 / 5)
     eta = Eta(clock=lambda: now[0])
-    for k in range(1, 17):
+    for k in range(1, 11):
         now[0] += 2.0  # 2 s per iteration
-        stage = IterationStage(k, n, rule=0.5 / k**2, tol=tol)
+        stage = IterationStage(k, n, rule=0.5 * q ** k, tol=tol)
         e = eta(k / n, stage)
-    to_rule = math.sqrt(0.5 / tol) - 16  # 6.4 iterations after iteration 16
+    to_rule = math.log(tol / (0.5 * q ** 10)) / math.log(q)  # 3.5 iterations after iteration 10
     assert e == pytest.approx(to_rule * 2.0, rel=1e-6) and eta.basis == "stopping rule"
-    assert eta.bound_iterations == n - 16 and eta.limit_s == pytest.approx((n - 16) * 2.0)
+    assert eta.bound_iterations == n - 10 and eta.limit_s == pytest.approx((n - 10) * 2.0)
     line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.limit_s,
                               "iterations_left_max": eta.bound_iterations, "eta_basis": eta.basis})
-    assert "image change 0.002 (stops below 0.001)" in line, line
-    assert "ETA ~00:13 (estimate: stopping rule; at most 84 more iterations, ~02:48 at the current rate)" in line, line
+    assert "image change 0.005 (stops below 0.001)" in line, line
+    assert "ETA ~00:07 (estimate: stopping rule; at most 90 more iterations, ~03:00 at the current rate)" in line, line
     from fpscan.service.recon.methods import get
 
     waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False,  # tv while λ still falls: its words
