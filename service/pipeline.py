@@ -70,7 +70,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fpscan.service.progress import Progress, span
+from fpscan.service.progress import Progress, forward, span
 from fpscan.service.recon import methods as _methods
 from fpscan.service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
 from fpscan.service.recon.methods import Method, MethodOptions
@@ -322,7 +322,9 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
         The method's options (module docstring): its own model's instance (what a job's record
         holds), or a dict of them; or give them as keywords.
     progress : callable, optional
-        ``progress(fraction, stage)``, fractions non-decreasing in [0, 1].
+        ``progress(fraction, stage)``, fractions non-decreasing in [0, 1], and a stage left
+        behind never reported again at the same fraction (``fpscan.service.progress.Forward``:
+        the method's last stage, e.g. tv's "converged after 53 iterations", stays the stage).
     should_stop : callable, optional
         ``should_stop() -> bool``, polled between steps.
     quiet : bool, optional
@@ -395,6 +397,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
                                           should_stop=should_stop, quiet=True, **given), method)
     spec = _methods.get(method)
     opts = method_options(method, options, **given)
+    progress = forward(progress)  # the fraction and the stage only move forward, whatever the method says
     if opts.sound_speed == "auto":
         from fpscan.service.autofocus import focus_then_reconstruct
 
@@ -534,7 +537,8 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         Recorded in the result (the dataset id, the file's name).
     progress : callable, optional
         ``progress(fraction, stage)``: ``"loading"`` at 0, the reconstruction's own stages
-        on [0.2, 0.9] (unmixing: [0.2, 0.95]), ``"writing"`` at 0.9, ``"done"`` at 1.
+        on [0.2, 0.9] (unmixing: [0.2, 0.95]), ``"writing"`` at 0.9, ``"done"`` at 1; the
+        fraction and the stage only move forward (``fpscan.service.progress.Forward``).
     should_stop : callable, optional
         As :func:`reconstruct`.
     on_loaded : callable, optional
@@ -590,6 +594,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     from fpscan.service.recon.methods import outcome
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
+    progress = forward(progress)  # the job's fraction and stage only move forward (fpscan.service.progress.Forward)
     load = {k: v for k, v in (load or {}).items() if v is not None}
     opts = None if method is None else method_options(method, options, **given)  # refused before any reading
     t0 = time.perf_counter()

@@ -247,3 +247,85 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     # the solver's answer, not the warm start: closer to the data than NEDNER's image
     used = json.loads(attrs["params"])
     assert used["warm_start"] == "nedner" and used["iterations"] <= max_iter and 0 < used["residual"] < 1
+
+
+#: a reconstruction job's phases in the order a person sees them (the test's own oracle of
+#: "forward": each stage's phase is the first whose words start it)
+PHASES = (("starting",), ("loading",), ("reconstructing",), ("warm start",), ("norm estimate",), ("iteration ",),
+          ("converged after ", "stopped after "), ("writing",), ("done",))
+
+
+def phase(stage: str) -> int:
+    for i, starts in enumerate(PHASES):
+        if stage.startswith(starts):
+            return i
+    raise AssertionError(f"a stage no phase names: {stage!r}")
+
+
+def test_tv_job_progress_only_moves_forward_and_says_when_the_rule_can_stop(shared_api):
+    """A tv job (λ continuation on: faint noise) over a real server, followed on its event stream,
+    and those events as ``fpscan jobs wait`` prints them: the stage's phase and the fraction never go back
+    (the pipeline's closing "reconstructing" no longer follows tv's "converged after k iterations");
+    while λ falls the stage says "λ continuation k/K" with K the result's continuation iterations,
+    and the rule's first possible stop, K + 3, is in every iteration's event; every event's bound on
+    the iterations left holds; a figure under 5 s is never shown 5 s or more after the first such
+    figure of its stretch (the worker's clock, ``elapsed_s``)."""
+    from fpscan.clients.cli.common import ProgressBar
+    from fpscan.physics.balls import Ball, ball_alines
+    from tests.waits import HANG_S
+
+    n, n_t, max_iter = 20, 160, 40
+    x = (np.arange(n) - (n - 1) / 2) * PITCH
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    balls = [Ball(x=2e-4, y=-1e-4, z=1.0e-3, radius=1.5e-4, amplitude=1.0),
+             Ball(x=-3e-4, y=2e-4, z=1.6e-3, radius=1e-4, amplitude=0.6)]
+    data = ball_alines(pos, balls, DT, n_t, C).T.reshape(n_t, n, n)
+    data = data + np.random.default_rng(0).standard_normal(data.shape) * np.abs(data).max() / 100  # 40 dB below the peak
+    ds = upload(shared_api, data.astype(np.float32))
+    r = shared_api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv",
+                                                      "params": {"n_z": 32, "max_iter": max_iter}})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    events = sse_events(shared_api, job_id, timeout=HANG_S)
+    assert [e["data"]["state"] for e in events if e["event"] == "state"][-1] == "succeeded", events[-3:]
+    progress = [e["data"] for e in events if e["event"] == "progress"]
+    stages = [p["stage"] for p in progress]
+    phases = [phase(s) for s in stages]
+    assert phases == sorted(phases), stages
+    fractions = [p["fraction"] for p in progress]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0, fractions
+    used = wait_job(shared_api, job_id)["params"]["result"]["params_used"]
+    K, last = used["continuation_iterations"], used["iterations"]
+    assert K > 0 and used["stop_armed_at"] == K + 3 and last >= K + 3, used
+    its = [p for p in progress if p.get("iteration")]
+    assert its, stages
+    for p in its:
+        k = p["iteration"]
+        continuing = re.fullmatch(rf"iteration {k}/{max_iter} \(λ continuation {k}/{K}\)", p["stage"])
+        assert bool(continuing) == (k <= K) and (k > K or re.fullmatch(rf"iteration {k}/{max_iter}", p["stage"])
+                                                  is None), p
+        assert p["stop_armed_at"] == K + 3 and p["stop_armed"] == (k >= K + 3), p
+        if p.get("iterations_left_max") is not None:  # the bound holds
+            assert last <= k + p["iterations_left_max"], (last, p)
+    low_since = None
+    for p in progress:
+        shown = p.get("eta_s")
+        if shown is not None and shown < 5:
+            low_since = p["elapsed_s"] if low_since is None else low_since
+            assert p["elapsed_s"] - low_since < 5, p
+        else:
+            low_since = None
+    # the CLI's lines of these events (`fpscan jobs wait`'s progress bar, off a terminal, a line
+    # each): phases and percentages only forward, the waiting phase named
+    bar = ProgressBar(f"job {job_id[:8]}", stream=io.StringIO(), period=0)
+    with bar:
+        for p in progress:
+            bar(p)
+    err = bar.stream.getvalue()
+    lines = [m for m in (re.match(rf"^job {job_id[:8]}: (?P<stage>.+?)  (?P<pct>\d+)%", line)
+                         for line in err.splitlines()) if m]
+    assert [phase(m["stage"]) for m in lines] == sorted(phase(m["stage"]) for m in lines), err
+    assert [int(m["pct"]) for m in lines] == sorted(int(m["pct"]) for m in lines), err
+    assert any(re.search(rf"\(λ continuation \d+/{K}\)$", m["stage"]) for m in lines), err
+    assert f"once λ has settled, from iteration {K + 3})" in err, err

@@ -116,9 +116,11 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     max_iter: Iterations = Field(DEFAULT_MAX_ITER, description="the iteration cap of the solver",
                                  json_schema_extra={"unit": "1"})
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "
-                     "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
-                     "(0: run every iteration); smaller runs longer and stops nearer the minimiser (0.002: "
-                     "1.1-2.5x the iterations; docs/performance.md)", json_schema_extra={"unit": "1"})
+                     "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations at λ "
+                     "(0: run every iteration); smaller runs longer and stops nearer the minimiser (half the "
+                     "default: 1.1-1.5x the iterations on sparse noisy scans), but never before λ's continuation "
+                     "ends + 3 iterations, where a noiseless scan stops whatever tol (docs/tv-measurements.md)",
+                     json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
                                   "setting time_limit_s caps it): when reached the result says converged false, "
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})

@@ -37,11 +37,13 @@ algorithm; each of its parts is a module of this package, with its own public in
 - ``prox``: the proximal map of λ TV + positivity, gradient projection on the dual (Chambolle
   2005), warm-started from the previous iteration's dual, in compiled sweeps that work in place.
 - ``stopping``: the image's relative change per iteration below ``tol`` in each of the last 3
-  iterations at λ itself ("converged"); else ``max_iter`` ("iterations") or the time limit.
+  iterations at λ itself ("converged"), so never before iteration K + 3 after a continuation of K
+  (``armed_at``, known from the first iteration); else ``max_iter`` ("iterations") or the time limit.
 - ``stores``: the dual, the last gradient and the last move wait between iterations as 16-bit
   fixed point, so the solver holds about 1 image, the dual's d/2 and two halves while the
   operator works (`fpscan.service.recon.memory.tv_memory`).
-- ``progress``: increasing fractions and stages, polled inside long steps so a cancel acts.
+- ``progress``: increasing fractions and stages ("iteration k/N (λ continuation k/K)" while λ
+  falls), polled inside long steps so a cancel acts.
 - ``result``: the result's ``params``.
 - ``kernels``: the solver's whole-image operations as one set per array namespace (the
   compiled loops on the CPU, CuPy's array expressions on a GPU).

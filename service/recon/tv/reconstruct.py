@@ -144,7 +144,9 @@ def reconstruct_tv(
         ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
         step of the norm estimate ("norm estimate") and every iteration ("iteration
-        k/max_iter"), and again with the same fraction at most every 0.2 s inside long steps
+        k/max_iter", "iteration k/max_iter (λ continuation k/K)" while λ still falls: an
+        `fpscan.service.progress.IterationStage` with the rule's value, ``tol`` and the first
+        iteration at which the rule can stop the run, K + 3), and again with the same fraction at most every 0.2 s inside long steps
         (the operator's checkpoints: `PlanarOperator` ``checkpoint``); it may raise to cancel
         (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
         when one iteration takes minutes.
@@ -164,7 +166,8 @@ def reconstruct_tv(
         why — noiseless data), ``warm_discrepancy`` (D₀, `fpscan.service.recon.tv.lam`),
         ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
         continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
-        λ), ``iterations``, ``residual``
+        λ), ``stop_armed_at`` (the first iteration at which the stopping rule could stop the run:
+        ``continuation_iterations`` + 3; None for ``tol`` 0), ``iterations``, ``residual``
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,

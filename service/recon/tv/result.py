@@ -16,6 +16,7 @@ import numpy as np
 from fpscan.service.recon.tv.fista import MARGIN, Solved
 from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
 from fpscan.service.recon.tv.problem import Model, Record
+from fpscan.service.recon.tv.stopping import WINDOW
 
 __all__ = ["result_params"]
 
@@ -94,6 +95,7 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
                   lam_factor=rule.factor if lam_auto else None, warm_discrepancy=rule.warm_discrepancy,
                   lam_start_factor=schedule.start_factor if schedule else 1.0,
                   continuation_iterations=schedule.iterations if schedule else 0,
+                  stop_armed_at=((schedule.iterations if schedule else 0) + WINDOW) if o["tol"] > 0 else None,
                   noise_sigma=record.sigma, image_noise=rule.image_noise,
                   noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
                   max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
