@@ -50,6 +50,7 @@ from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any
 
+from fpscan.service.disk import free_bytes
 from fpscan.service.jobs.store import ACTIVE, JobStore
 from fpscan.service.storage.usage import tree_bytes, usage_for
 
@@ -785,8 +786,5 @@ def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]
     out: dict[str, int | None] = {f"{k}_bytes": v for k, v in sizes.items()}
     out["other_bytes"] = other  # the database, plans, logs
     out["total_bytes"] = other + sum(sizes.values())
-    try:
-        out["free_bytes"] = shutil.disk_usage(data if data.exists() else data.parent).free
-    except OSError:
-        out["free_bytes"] = None
+    out["free_bytes"] = free_bytes(data if data.exists() else data.parent)
     return out
