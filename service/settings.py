@@ -202,9 +202,10 @@ class Settings(BaseSettings):
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
                                 "whose address space is capped at memory_limit, at least 1 GiB); up to 4x as many "
                                 "more wait, further ones get 429")
-    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (each streams its volume "
-                                "in slabs of a few MiB, in the server's process); up to 4x as many more wait, further "
-                                "ones get 429")
+    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (a result's exports stream "
+                                "its volume in slabs of a few MiB, in the server's process; a scan's IPASC export "
+                                "reads the whole scan); up to 4x as many more wait (for a turn or for another "
+                                "request's build of the same file), further ones get 429")
     host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "
