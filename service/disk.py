@@ -44,7 +44,7 @@ _SHORT_WRITE = re.compile(r"^(\d+) requested and (\d+) written$")
 _NO_ROOM = "Not enough free space to write"
 #: the temporary names fpscan's writers use in the data folder: ``.<name>.<pid>.<12 hex>.tmp``
 #: (:func:`temp_sibling`), ``<name>.tmp-<pid>-<ns>`` (a result folder being written),
-#: ``.<name>.tmp-<pid>`` (an unmixing file being written)
+#: ``.<name>.tmp-<pid>`` (an unmixing file an earlier release was writing: its crash debris)
 _TEMP_NAME = re.compile(r"^\..+\.\d+\.[0-9a-f]{12}\.tmp$|^.+\.tmp-\d+(-\d+)?$")
 
 
@@ -95,7 +95,8 @@ def temp_sibling(out: str | os.PathLike) -> Path:
 def is_temp_name(name: str) -> bool:
     """Whether ``name`` (a last path component) is one of the temporary names fpscan's
     writers use in the data folder (:func:`temp_sibling`'s, a result folder's
-    ``<name>.tmp-<pid>-<ns>``, an unmixing file's ``.<name>.tmp-<pid>``): what a crash leaves behind.
+    ``<name>.tmp-<pid>-<ns>``, and ``.<name>.tmp-<pid>``, an unmixing file's in an earlier
+    release): what a crash leaves behind.
 
     Parameters
     ----------
