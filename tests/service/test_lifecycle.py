@@ -313,3 +313,27 @@ def test_a_report_whose_rollback_failed_raises_its_own_error_and_ends_at_full_sy
         assert store.get(job["id"])["state"] == "cancelled" and "note" not in store.get(job["id"])["progress"]
     finally:
         store.close()
+
+
+def test_an_older_database_gains_the_datasets_store_times_from_their_wall_times(tmp_path):
+    """A database of an earlier release (datasets with their wall times only): each dataset's
+    store time of use becomes its latest use's wall time (the meta's ``last_used``, else its
+    upload's), the best there is, as the jobs' were; a dataset stored afterwards comes after
+    them on the store's time, and retention ages them by it."""
+    from types import SimpleNamespace
+
+    db = tmp_path / "jobs.sqlite"
+    with sqlite3.connect(db) as con:  # the datasets table as earlier releases made it
+        con.execute("CREATE TABLE datasets (id TEXT PRIMARY KEY, meta TEXT NOT NULL, created REAL NOT NULL)")
+        con.execute("INSERT INTO datasets VALUES ('used', ?, 1000.0)", (json.dumps({"last_used": 5000.0}),))
+        con.execute("INSERT INTO datasets VALUES ('idle', '{}', 2000.0)")
+    store = JobStore(db)
+    try:
+        assert {r["id"]: r["used_mono"] for r in store.list_datasets()} == {"used": 5000.0, "idle": 2000.0}
+        store.put_dataset("new", {})
+        assert store.list_datasets()[-1]["used_mono"] > 5000.0
+        settings = SimpleNamespace(data_dir=tmp_path / "data")
+        policy = {"datasets_max_age_s": 2500.0, "datasets_keep_bytes": None}
+        assert lifecycle.apply_dataset_retention(store, settings, policy, now=5500.0) == ["idle"]
+    finally:
+        store.close()
