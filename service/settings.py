@@ -239,9 +239,9 @@ class Settings(BaseSettings):
                                                       "(None = no limit)")
     retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
                                                        "job reads once older than this, s (None = never)")
-    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
-                                    "dataset that would leave less (counting imports in flight) is refused with 507; "
-                                    "below it /api/health lists the disk as full")
+    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload or its import, and an "
+                                    "export's build, must leave: one that would leave less (counting those in "
+                                    "flight) is refused with 507; below it /api/health lists the disk as full")
     db_reserve_bytes: int = Field(8 * 2**20, ge=0, le=2**30, description="bytes kept in a reserve file beside the "
                                   "job database and given up when its disk fills, so that jobs' final states, cancels "
                                   "and deletions can still be written (0 = none)")
