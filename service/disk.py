@@ -35,7 +35,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["is_disk_full", "file_replaced", "folder_replaced", "copy_replaced", "fsync_tree", "fsync_folder",
+__all__ = ["free_bytes", "is_disk_full", "file_replaced", "folder_replaced", "copy_replaced", "fsync_tree", "fsync_folder",
            "durable_mkdir", "remove_tree", "temp_sibling", "is_temp_name"]
 
 #: NumPy's short write (``ndarray.tofile``; ``numpy/_core/src/multiarray/convert.c``): no errno
@@ -44,8 +44,31 @@ _SHORT_WRITE = re.compile(r"^(\d+) requested and (\d+) written$")
 _NO_ROOM = "Not enough free space to write"
 #: the temporary names fpscan's writers use in the data folder: ``.<name>.<pid>.<12 hex>.tmp``
 #: (:func:`temp_sibling`), ``<name>.tmp-<pid>-<ns>`` (a result folder being written),
-#: ``.<name>.tmp-<pid>`` (an unmixing file being written)
+#: ``.<name>.tmp-<pid>`` (an unmixing file an earlier release was writing: its crash debris)
 _TEMP_NAME = re.compile(r"^\..+\.\d+\.[0-9a-f]{12}\.tmp$|^.+\.tmp-\d+(-\d+)?$")
+
+
+def free_bytes(path: str | os.PathLike) -> int | None:
+    """The bytes free to an unprivileged writer on the file system holding ``path``
+    (``statvfs``: ``f_bavail × f_frsize``, as ``shutil.disk_usage(path).free``), or None when
+    they cannot be read (no such path, an I/O error): the one look at free space of every
+    writer and report of the data folder.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file or folder on that file system.
+
+    Returns
+    -------
+    int or None
+        The free bytes, or None.
+    """
+    try:
+        st = os.statvfs(path)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
 
 
 def temp_sibling(out: str | os.PathLike) -> Path:
@@ -72,7 +95,8 @@ def temp_sibling(out: str | os.PathLike) -> Path:
 def is_temp_name(name: str) -> bool:
     """Whether ``name`` (a last path component) is one of the temporary names fpscan's
     writers use in the data folder (:func:`temp_sibling`'s, a result folder's
-    ``<name>.tmp-<pid>-<ns>``, an unmixing file's ``.<name>.tmp-<pid>``): what a crash leaves behind.
+    ``<name>.tmp-<pid>-<ns>``, and ``.<name>.tmp-<pid>``, an unmixing file's in an earlier
+    release): what a crash leaves behind.
 
     Parameters
     ----------
@@ -101,12 +125,9 @@ def _as_disk_full(exc: BaseException, where: Path) -> BaseException:
     short = _SHORT_WRITE.match(str(exc))
     if short is None:
         return exc
-    try:
-        st = os.statvfs(where)
-    except OSError:
-        return exc
+    free = free_bytes(where)
     missing = int(short.group(1)) - int(short.group(2))
-    if st.f_bavail * st.f_frsize >= missing:
+    if free is None or free >= missing:
         return exc
     full = OSError(errno.ENOSPC, f"No space left on device ({type(exc).__name__}: {exc})")
     full.__cause__ = exc

@@ -204,9 +204,10 @@ class Settings(BaseSettings):
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
                                 "whose address space is capped at memory_limit, at least 1 GiB); up to 4x as many "
                                 "more wait, further ones get 429")
-    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (each streams its volume "
-                                "in slabs of a few MiB, in the server's process); up to 4x as many more wait, further "
-                                "ones get 429")
+    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (a result's exports stream "
+                                "its volume in slabs of a few MiB, in the server's process; a scan's IPASC export "
+                                "reads the whole scan); up to 4x as many more wait (for a turn or for another "
+                                "request's build of the same file), further ones get 429")
     host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "
@@ -240,9 +241,9 @@ class Settings(BaseSettings):
                                                       "(None = no limit)")
     retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
                                                        "job reads once older than this, s (None = never)")
-    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
-                                    "dataset that would leave less (counting imports in flight) is refused with 507; "
-                                    "below it /api/health lists the disk as full")
+    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload or its import, and an "
+                                    "export's build, must leave: one that would leave less (counting those in "
+                                    "flight) is refused with 507; below it /api/health lists the disk as full")
     db_reserve_bytes: int = Field(8 * 2**20, ge=0, le=2**30, description="bytes kept in a reserve file beside the "
                                   "job database and given up when its disk fills, so that jobs' final states, cancels "
                                   "and deletions can still be written (0 = none)")

@@ -224,9 +224,10 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
     admission = disk_admission(context)
     try:
         # the body's copy is admitted too (its size is known: the form parser has spooled it)
-        refused = admission.reserve(dataset_id, int(file.size or 0))
+        held = int(file.size or 0)
+        refused = admission.reserve(dataset_id, held, what=f"the upload holds {held} bytes")
         if refused:
-            raise HTTPException(507, refused.replace("the dataset decodes to", "the upload holds"))
+            raise HTTPException(507, refused)
         with open(src, "wb") as out:
             while chunk := file.file.read(1 << 20):
                 size += len(chunk)

@@ -415,11 +415,10 @@ def _free_bytes(context: Context) -> int | None:
     """Free bytes of the data folder's disk for a result (None when unknown): less the
     reserve an upload must leave (``disk_reserve_bytes``) and the job database's reserve
     while it is spent."""
-    import shutil
+    from fpscan.service.disk import free_bytes
 
-    try:
-        free = shutil.disk_usage(context.settings.data_dir).free
-    except OSError:
+    free = free_bytes(context.settings.data_dir)
+    if free is None:
         return None
     spent = context.store.reserve_bytes if context.store.reserve_spent is not None else 0
     return max(0, free - int(context.settings.disk_reserve_bytes) - spent)

@@ -11,8 +11,8 @@ answered 400 "There was an error parsing the body" with nothing logged. Here ins
 - the spool files are made in ``<data_dir>/incoming`` (unnamed: ``O_TMPFILE`` where the
   file system has it, so nothing is left behind by a crash; ``tempfile.TemporaryFile``);
 - before a byte of the body is read, its length (``Content-Length``; without one, the
-  upload limit plus its multipart allowance) is admitted by the disk admission of the
-  imports (:func:`disk_admission`, ``fpscan.service.formats.untrusted.DiskAdmission``: the free
+  upload limit plus its multipart allowance, as the 507's reason then says) is admitted by
+  the disk admission of the imports (:func:`disk_admission`, ``fpscan.service.formats.untrusted.DiskAdmission``: the free
   space less ``disk_reserve_bytes`` less what uploads and imports in flight were admitted
   for), else 507 with the reason, the body unread; the reservation lasts while the body
   is spooled (then the disk's free space counts it);
@@ -27,7 +27,6 @@ written to it.
 from __future__ import annotations
 
 import logging
-import shutil
 import uuid
 from collections.abc import Callable, Coroutine
 from contextlib import aclosing
@@ -44,6 +43,7 @@ from starlette.responses import Response
 
 from fpscan.service.api.context import Context
 from fpscan.service.api.upload_limit import MULTIPART_ALLOWANCE
+from fpscan.service.disk import free_bytes
 from fpscan.service.formats.untrusted import DiskAdmission
 from fpscan.service.jobs.queue import INCOMING
 
@@ -110,14 +110,19 @@ class _SpoolingRequest(Request):
         context: Context = self.app.state.ctx
         spool_dir = Path(context.settings.data_dir) / INCOMING
         admission = disk_admission(context)
+        chunked = False
         try:
             length = int(self.headers.get("content-length", ""))
+            what = f"the upload's body holds {length} bytes"
         except ValueError:  # chunked: as much as the upload limit lets through
-            length = context.settings.upload_limit + MULTIPART_ALLOWANCE
+            chunked, length = True, context.settings.upload_limit + MULTIPART_ALLOWANCE
+            what = (f"an upload without Content-Length is admitted for up to {length} bytes (the upload limit and "
+                    "its multipart allowance)")
         key = f"spool-{uuid.uuid4().hex}"
-        refused = admission.reserve(key, length)
-        if refused:
-            reason = refused.replace("the dataset decodes to", "the upload's body holds")
+        reason = admission.reserve(key, length, what=what)
+        if reason:
+            if chunked:
+                reason += "; send its Content-Length to be admitted for its own bytes"
             log.warning("upload refused (507) before its body was spooled: %s", reason)
             raise HTTPException(507, reason)
         try:  # reserved while it is written; once written, the disk's free space counts it
@@ -129,21 +134,15 @@ class _SpoolingRequest(Request):
         except MultiPartException as exc:
             raise HTTPException(400, exc.message) from None
         except OSError as exc:  # the server's disk, not the client's body
-            free = _free_bytes(spool_dir)
+            free = free_bytes(spool_dir)
             reason = (f"the upload could not be spooled into the data folder ({exc.strerror or type(exc).__name__}; "
-                      f"{free} bytes free there): free space or retry later")
+                      f"{'an unknown number of' if free is None else free} bytes free there): free space or retry "
+                      "later")
             log.warning("upload refused (507), its spool failed: %s", reason)
             raise HTTPException(507, reason) from None
         finally:
             admission.release(key)
         return self._form
-
-
-def _free_bytes(folder: Path) -> int | str:
-    try:
-        return shutil.disk_usage(folder).free
-    except OSError:
-        return "unknown"
 
 
 class SpooledUploads(APIRoute):

@@ -14,7 +14,9 @@ Two containers, one format (sniffed from the content, never the suffix):
   read sized from what it declares (each field of a struct or cell, nested or not: its
   elements × its class's size), the uncompressed variables and the arrays read together at
   most ``max_bytes``. A zlib bomb, however it is nested, is refused before its bytes are
-  decoded.
+  decoded. The variables are held once, uncompressed, in one buffer written as they are
+  read, which scipy then reads; a variable declaring more than 64 dimensions is refused as
+  corrupt (k-Wave's have at most 4).
 - **MAT v7.3** (``save -v7.3``): HDF5 behind a 512-byte text header (``MATLAB 7.3
   MAT-file``). The registry opens it past the header and checks it like every HDF5 input
   (``fpscan.service.formats.untrusted.check_hdf5_file``: no external links or storage, no virtual
@@ -124,6 +126,13 @@ _CHAR_BYTES = 8
 _MAX_DEPTH = 16
 #: compressed bytes read at once from a layer below
 _CHUNK = 1 << 16
+#: bytes copied at once into the uncompressed stream (a variable's body, read or inflated)
+_COPY_CHUNK = 1 << 20
+#: the most dimensions a variable may declare: k-Wave's arrays have at most 4 (a 3-D grid and
+#: time), MATLAB's own data rarely more than a handful; 64 keeps any plausible array while a
+#: hostile one of 100 000 dimensions (4 bytes each, a few kB once compressed) is refused before
+#: their product is formed (each a Python int multiplication: quadratic in their number)
+_MAX_DIMS = 64
 
 
 class _Budget:
@@ -190,11 +199,16 @@ class _Layer:
             need -= len(chunk)
         return b"".join(out)
 
-    def exactly(self, n: int, what: str) -> bytes:
-        data = self.read(n)
-        if len(data) < n:
-            raise ValueError(f"the MAT-file is truncated ({what} declares {n} bytes, {len(data)} are there)")
-        return data
+    def copy_to(self, sink: io.BytesIO, n: int, what: str) -> None:
+        """Write the next ``n`` bytes into ``sink``, :data:`_COPY_CHUNK` at a time (no copy
+        of the whole is made). Raises ValueError when the stream ends first."""
+        left = n
+        while left > 0:
+            data = self.read(min(left, _COPY_CHUNK))
+            if not data:
+                raise ValueError(f"the MAT-file is truncated ({what} declares {n} bytes, {n - left} are there)")
+            sink.write(data)
+            left -= len(data)
 
     def skip(self, n: int) -> None:
         """Past ``n`` bytes, in chunks (a compressed layer's are inflated and dropped)."""
@@ -211,11 +225,11 @@ class _Layer:
             self.left = 0
 
 
-def _elements(layer: _Layer, endian: str, budget: _Budget, out: list[bytes], sizes: list[tuple[str, str, int]],
+def _elements(layer: _Layer, endian: str, budget: _Budget, out: io.BytesIO, sizes: list[tuple[str, str, int]],
               depth: int = 0) -> None:
     """Every element of ``layer`` (the file, or a compressed element's stream): each
-    variable (``miMATRIX``) appended to ``out`` uncompressed with its name, class and
-    decoded size (:func:`_matrix_size`) in ``sizes``; each compressed element inflated in
+    variable (``miMATRIX``) written to ``out`` uncompressed, as it is read, with its name, class and
+    decoded size (:func:`_matrix_size`, read in ``out`` itself) in ``sizes``; each compressed element inflated in
     turn, however deeply nested, its bytes counted (``budget.inflated``) before they are
     inflated and the variables' bytes (``budget.held``) before they are read."""
     inflating = depth > 0
@@ -240,12 +254,19 @@ def _elements(layer: _Layer, endian: str, budget: _Budget, out: list[bytes], siz
             inner.close()
         elif mtype == _MI_MATRIX:
             budget.held(8 + nbytes, "variables")
-            body = layer.exactly(nbytes, "a variable")
-            name, cls, decoded = _matrix_size(memoryview(body), endian, 0, budget.max_bytes)
-            out.append(tag + body)
-            sizes.append((name, cls, decoded))
+            start = out.tell() + 8
+            out.write(tag)
+            layer.copy_to(out, nbytes, "a variable")
+            sizes.append(_sized(out, start, nbytes, endian, budget.max_bytes))
         else:  # any other top-level element is not a variable: skipped
             layer.skip(nbytes)
+
+
+def _sized(out: io.BytesIO, start: int, nbytes: int, endian: str, cap: int) -> tuple[str, str, int]:
+    """:func:`_matrix_size` of the variable body at ``start`` of ``out`` (``nbytes`` long), read
+    in place: the view of ``out`` is released before ``out`` grows again."""
+    with out.getbuffer() as whole:
+        return _matrix_size(whole[start:start + nbytes], endian, 0, cap)
 
 
 def _sub_elements(buf: memoryview, endian: str) -> Iterator[tuple[int, memoryview]]:
@@ -268,20 +289,25 @@ def _sub_elements(buf: memoryview, endian: str) -> Iterator[tuple[int, memoryvie
 
 
 def _declared(cls: int, flags: int, subs: Iterator[tuple[int, memoryview]], stored: int,
-              endian: str) -> tuple[str, int, int]:
-    """A variable's name, its number of elements and what it decodes to besides its nested
-    arrays (:func:`_matrix_size`), from its dimensions and name (the next two of ``subs``;
-    none in an opaque object's, whose ``stored`` bytes count twice)."""
+              endian: str, cap: int) -> tuple[str, int, int]:
+    """A variable's name, its number of elements (saturated at ``cap + 1``) and what it decodes
+    to besides its nested arrays (:func:`_matrix_size`), from its dimensions and name (the next
+    two of ``subs``; none in an opaque object's, whose ``stored`` bytes count twice). More than
+    :data:`_MAX_DIMS` dimensions are refused."""
     if cls == _MX_OPAQUE:  # no dimensions or name: three strings and the object's data
         return "", 1, _OBJECT_BYTES + 2 * stored
     dims, named = next(subs, None), next(subs, None)
     if dims is None or named is None or dims[0] != _MI_INT32 or len(dims[1]) % 4:
         raise ValueError("the MAT-file is corrupt (a variable without its dimensions and name)")
+    n_dims = len(dims[1]) // 4
+    if n_dims > _MAX_DIMS:
+        raise ValueError(f"the MAT-file is corrupt (a variable declares {n_dims} dimensions; at most {_MAX_DIMS} "
+                         "are read)")
     n = 1
-    for d in struct.unpack_from(f"{endian}{len(dims[1]) // 4}i", dims[1]):
+    for d in struct.unpack_from(f"{endian}{n_dims}i", dims[1]):
         if d < 0:
             raise ValueError("the MAT-file is corrupt (a negative dimension)")
-        n *= d
+        n = min(n * d, cap + 1)  # saturated: beyond the cap the size is refused anyway
     name = bytes(named[1]).split(b"\0", 1)[0].decode("latin-1")
     if cls in _MX_ITEMSIZE:
         per = 1 if flags & 0x200 else _MX_ITEMSIZE[cls]  # logical: bool
@@ -311,7 +337,7 @@ def _matrix_size(body: memoryview, endian: str, depth: int, cap: int) -> tuple[s
     flags = struct.unpack_from(endian + "I", first[1])[0]
     cls = flags & 0xFF
     label = _MX_NAMES.get(cls, str(cls))
-    name, n, decoded = _declared(cls, flags, subs, len(body), endian)
+    name, n, decoded = _declared(cls, flags, subs, len(body), endian, cap)
     fields, length = 1, 0
     for mtype, data in subs:
         if decoded > cap:
@@ -329,9 +355,10 @@ def _matrix_size(body: memoryview, endian: str, depth: int, cap: int) -> tuple[s
     return name, label, min(decoded, cap + 1)
 
 
-def _inflated_v5(fh: BinaryIO, max_bytes: int) -> tuple[bytes, list[tuple[str, str, int]], _Budget]:
+def _inflated_v5(fh: BinaryIO, max_bytes: int) -> tuple[io.BytesIO, list[tuple[str, str, int]], _Budget]:
     """The MAT v5 file open in ``fh`` as an uncompressed v5 file (header and variables,
-    every compressed element inflated, nested ones too), each variable's (name, class,
+    every compressed element inflated, nested ones too) in one ``io.BytesIO``, written as the
+    elements are read (held once: no list of parts joined), each variable's (name, class,
     decoded bytes) and what is left of the budget. Inflates at most ``MAX_RATIO`` times the
     file's bytes (+ ``SMALL_BYTES``) through all layers together and holds at most
     ``max_bytes``, each element's bytes counted before it is inflated. Raises ValueError."""
@@ -346,10 +373,12 @@ def _inflated_v5(fh: BinaryIO, max_bytes: int) -> tuple[bytes, list[tuple[str, s
     endian = "<" if header[126:128] == b"IM" else ">"
     stored = os.fstat(fh.fileno()).st_size
     budget = _Budget(min(max_bytes, MAX_RATIO * stored + SMALL_BYTES), max_bytes, stored, max_bytes)
-    out = [header]
+    out = io.BytesIO()
+    out.write(header)
     sizes: list[tuple[str, str, int]] = []
     _elements(_Layer(fh), endian, budget, out, sizes)
-    return b"".join(out), sizes, budget
+    out.seek(0)
+    return out, sizes, budget
 
 
 def _v5_variables(fh: BinaryIO, names: set[str] | None, max_bytes: int,
@@ -371,7 +400,7 @@ def _v5_variables(fh: BinaryIO, names: set[str] | None, max_bytes: int,
         return {}, listed
     budget.held(sum(d for n, _, d in sizes if n in wanted), "variables " + ", ".join(wanted))
     try:
-        got = scipy.io.loadmat(io.BytesIO(stream), variable_names=wanted, simplify_cells=True, mat_dtype=True)
+        got = scipy.io.loadmat(stream, variable_names=wanted, simplify_cells=True, mat_dtype=True)
     except MemoryError:
         raise
     except Exception as exc:  # scipy raises many kinds on a damaged file

@@ -18,7 +18,6 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
-import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -30,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.driver.scanfile import PRESSURE_UNITS
-from fpscan.service.disk import copy_replaced
+from fpscan.service.disk import copy_replaced, file_replaced, fsync_tree
 from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import current_names
 from fpscan.wire.brief import one_line
@@ -235,8 +234,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         software_version = installed_version()
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
-    try:
+    with file_replaced(path) as tmp:  # a temporary sibling, renamed over path; removed on any error
         with h5py.File(tmp, "w") as f:
             d = f.create_dataset("p0", data=p0, **storage_layout(p0))
             axes = [("z", z)] + ([("y", y)] if y is not None else []) + [("x", x)]
@@ -261,12 +259,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
             a["units"] = f"m for coordinates; p0 in {p0_unit}"
             a["p0_unit"] = p0_unit
             a["orientation"] = ORIENTATION
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        fsync_tree(tmp, parent=False)  # its data on disk before the rename names it
     return path
 
 

@@ -125,18 +125,35 @@ class DiskAdmission:
         with self._lock:
             return sum(self._reserved.values())
 
-    def reserve(self, key: str, nbytes: int) -> str | None:
-        """Admit ``nbytes`` for ``key`` (None) or say why not (the reason)."""
-        import shutil
+    def reserve(self, key: str, nbytes: int, what: str | None = None) -> str | None:
+        """Admit ``nbytes`` for ``key`` (None) or say why not (the reason).
+
+        Parameters
+        ----------
+        key : str
+            The reservation's name (:meth:`release` ends it; a second ``reserve`` replaces it).
+        nbytes : int
+            The bytes to be written.
+        what : str or None, optional
+            The reason's start, what needs the bytes (e.g. "the upload holds 5 bytes");
+            default None: "the dataset decodes to ``nbytes`` bytes".
+
+        Returns
+        -------
+        str or None
+            None when admitted; else why not (the bytes asked for, the room left, what to do).
+            Free bytes that cannot be read count as none.
+        """
+        from fpscan.service.disk import free_bytes
 
         with self._lock:
-            free = shutil.disk_usage(self.folder).free
+            free = free_bytes(self.folder) or 0
             others = sum(v for k, v in self._reserved.items() if k != key)
             room = free - others - self.reserve_bytes
             if nbytes > room:
-                return (f"the dataset decodes to {nbytes} bytes but the data folder's disk can take "
-                        f"{max(room, 0)} more ({free} free, {others} reserved by uploads and imports in progress, "
-                        f"{self.reserve_bytes} kept free); free space or retry later")
+                return (f"{what or f'the dataset decodes to {nbytes} bytes'} but the data folder's disk can take "
+                        f"{max(room, 0)} more ({free} free, {others} reserved by uploads, imports and exports in "
+                        f"progress, {self.reserve_bytes} kept free); free space or retry later")
             self._reserved[key] = int(nbytes)
             return None
 

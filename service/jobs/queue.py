@@ -47,7 +47,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from fpscan.service.disk import durable_mkdir, fsync_tree, is_disk_full
+from fpscan.service.disk import durable_mkdir, free_bytes, fsync_tree, is_disk_full
 from fpscan.service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
 from fpscan.service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
 from fpscan.service.jobs.lifecycle import apply_retention
@@ -262,9 +262,8 @@ class ReconQueue:
     def _free_bytes(self) -> int | None:
         """Free bytes of the results' disk for results: less the job database's reserve
         while it is spent (those bytes are the database's, for the jobs' states)."""
-        try:
-            free = shutil.disk_usage(self.results_dir).free
-        except OSError:
+        free = free_bytes(self.results_dir)
+        if free is None:
             return None
         return max(0, free - (self.store.reserve_bytes if self.store.reserve_spent is not None else 0))
 

@@ -4,9 +4,13 @@ bounds:
 - memory: 9 concurrent exports (OME-TIFF, OME-Zarr, npz) of three 128 MiB result volumes keep
   the server process's peak resident memory (``/proc``, ``tests.rss.RssWatch``) under +300 MB:
   the builds take ``export_workers`` turns, the rest wait, and each streams its volume in slabs;
-- a full disk (a real 64 MiB tmpfs, filled but a slack): every export answers 507 with the free
-  bytes, never 500 (OME-TIFF's writer, NumPy's ``tofile``, raises its short write without an
-  errno), the log names the exception, and no temporary file or folder is left at any depth;
+- disk: an export that would eat into ``disk_reserve_bytes`` is refused with 507 before it is
+  written (a real 64 MiB tmpfs); a disk that fills while an export is written (a real tmpfs,
+  filled but a slack): every export answers 507 with the free bytes, never 500 (OME-TIFF's
+  writer, NumPy's ``tofile``, raises its short write without an errno), the log names the
+  exception, and no temporary file or folder is left at any depth;
+- admission: requests for one export are counted in before they wait for its build (429
+  beyond ``export_workers`` and four times as many waiting);
   a restart removes fpscan's temporaries at any depth of ``results/`` and ``exports/`` (and
   nothing else);
 - symbolic links: a result's ``volume.h5``, a picture, an export or the whole result folder
@@ -24,6 +28,7 @@ import os
 import threading
 import time
 
+import h5py
 import numpy as np
 import pytest
 
@@ -38,15 +43,13 @@ MiB = 2**20
 
 
 def _result_job(c, shape=(64, 16, 16), seed: int = 1) -> str:
-    """A succeeded NER reconstruction of a random dataset; its id. Its volume has ``shape``: n_t
-    rows of c·dt (30 µm at the default 1500 m/s) asked for, not the default depth grid."""
+    """A succeeded NER reconstruction of a random dataset; its id."""
     buf = io.BytesIO()
     np.save(buf, np.random.default_rng(seed).standard_normal(shape).astype(np.float32))
     r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
                files={"file": (f"d{seed}.npy", buf.getvalue())})
     assert r.status_code == 201, r.text
-    r = c.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner",
-                                              "params": {"n_z": shape[0], "dz": "30um"}})
+    r = c.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner"})
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"])
     assert job["state"] == "succeeded", job
@@ -136,30 +139,155 @@ def test_numpys_errno_less_short_write_on_a_full_disk_is_a_full_disk(small_disk)
     assert sorted(p.name for p in small_disk.iterdir()) == ["filler.bin"]
 
 
+def test_free_bytes_are_the_disks_and_read_in_one_place(small_disk):
+    """``fpscan.service.disk.free_bytes``: the bytes ``statvfs`` gives an unprivileged writer
+    (what ``df`` shows as available), None where there is no disk to ask; and it is the one
+    look at free space in the server's code."""
+    import re
+    import subprocess
+    from pathlib import Path
+
+    from fpscan.service.disk import free_bytes
+
+    fill(small_disk, leave=3 * MiB)
+    df = subprocess.run(["df", "-B1", "--output=avail", str(small_disk)], capture_output=True, text=True, check=True)
+    assert free_bytes(small_disk) == int(df.stdout.split()[-1]), df.stdout
+    assert 2 * MiB < free_bytes(small_disk) <= 3 * MiB
+    assert free_bytes(small_disk / "missing" / "folder") is None
+    service = Path(__file__).resolve().parents[2] / "service"
+    readers = sorted(str(p.relative_to(service)) for p in service.rglob("*.py")
+                     if re.search(r"shutil\.disk_usage|statvfs\(", p.read_text()) and p.name != "disk.py")
+    assert readers == [], readers
+
+
 @needs_recon
-def test_a_full_disk_answers_every_export_507_and_leaves_no_temporary(tmp_path, small_disk):
-    srv = Server(small_disk / "data", env={"FPSCAN_DISK_RESERVE_BYTES": str(2 * MiB)})
+def test_an_export_that_would_eat_into_the_disk_reserve_is_refused_up_front(tmp_path, small_disk):
+    """The data folder on a 64 MiB disk with 32 MiB kept free (``disk_reserve_bytes``, for
+    scans and the job store) and 34 MiB free: every export of a 1.5 MiB volume would fit the
+    disk, but not beside the reserve: 507 before a byte is written, the reason naming the
+    export's bytes and what is kept free; no temporary, nothing built (today's main wrote them
+    into the reserve)."""
+    import shutil
+
+    srv = Server(small_disk / "data", env={"FPSCAN_DISK_RESERVE_BYTES": str(32 * MiB)})
     srv.log = tmp_path / "server.log"  # not on the disk that fills
     srv.start()
     try:
         with srv.client() as c:
-            jid = _result_job(c, shape=(512, 48, 48))  # a 4.5 MiB volume
+            jid = _result_job(c, shape=(512, 48, 48))  # a 1.5 MiB volume
             folder = _result_folder(small_disk / "data", jid)
-            fill(small_disk, leave=512 * 1024)  # room for the files' headers, not for their data
+            fill(small_disk, leave=34 * MiB)
+            assert shutil.disk_usage(small_disk).free > 30 * MiB  # room for any of the exports, not beside the reserve
             for fmt in ("ome-tiff", "ome-zarr", "npz", "mat"):
                 r = c.get(f"/api/jobs/{jid}/export/{fmt}")
                 assert r.status_code == 507, (fmt, r.status_code, r.text)
-                assert "no room" in r.json()["detail"] and "bytes free" in r.json()["detail"], r.text
+                detail = r.json()["detail"]
+                assert f"the {fmt} export of job {jid} may take up to" in detail, detail
+                assert f"{32 * MiB} kept free" in detail, detail
             assert _temporaries(small_disk / "data") == []
             assert sorted(p.name for p in folder.iterdir() if p.name.startswith("volume")) == ["volume.h5"]
-            log = srv.log.read_text()
-            full = [line for line in log.splitlines() if f"of job {jid}: the disk is full" in line]
-            print("\n".join(full))
-            assert len(full) == 4 and all("OSError" in line for line in full), full
-            assert "internal error" not in log
-            os.unlink(small_disk / "filler.bin")
-            r = c.get(f"/api/jobs/{jid}/export/ome-tiff")  # room again: exported
-            assert r.status_code == 200 and len(r.content) > 512 * 48 * 48 * 4, r.status_code
+        log = srv.log.read_text()
+        assert sum(f"of job {jid} refused (507) before it was written" in line for line in log.splitlines()) == 4
+    finally:
+        srv.stop()
+
+
+@needs_recon
+def test_a_full_disk_met_while_writing_answers_every_export_507_and_leaves_no_temporary(tmp_path):
+    """A disk that fills while an export is written (another writer took the room the admission
+    saw): 507 with the free bytes, never 500, logged with the exception's name, no temporary
+    left. Made so here: the result's folder is a small disk of its own (a mount point), filled
+    but a slack, while the data folder's disk, which the admission looks at, has room."""
+    data = tmp_path / "data"
+    srv = Server(data).start()
+    try:
+        with srv.client() as c:
+            jid = _result_job(c, shape=(512, 48, 48))  # a 1.5 MiB volume
+            folder = _result_folder(data, jid)
+            saved = tmp_path / "saved"
+            folder.rename(saved)
+            with tmpfs(folder, "16m"):
+                for p in saved.iterdir():
+                    (folder / p.name).write_bytes(p.read_bytes())
+                fill(folder, leave=512 * 1024)  # room for the files' headers, not for their data
+                for fmt in ("ome-tiff", "ome-zarr", "npz", "mat"):
+                    r = c.get(f"/api/jobs/{jid}/export/{fmt}")
+                    assert r.status_code == 507, (fmt, r.status_code, r.text)
+                    assert "no room" in r.json()["detail"] and "bytes free" in r.json()["detail"], r.text
+                assert _temporaries(data) == []
+                assert sorted(p.name for p in folder.iterdir() if p.name.startswith("volume")) == ["volume.h5"]
+                log = srv.log.read_text()
+                full = [line for line in log.splitlines() if f"of job {jid}: the disk is full" in line]
+                print("\n".join(full))
+                assert len(full) == 4 and all("OSError" in line for line in full), full
+                assert "internal error" not in log
+                os.unlink(folder / "filler.bin")
+                r = c.get(f"/api/jobs/{jid}/export/ome-tiff")  # room again: exported
+                with h5py.File(folder / "volume.h5", "r") as f:
+                    volume_bytes = f["p0"].size * 4
+                assert r.status_code == 200 and len(r.content) > volume_bytes, (r.status_code, volume_bytes)
+    finally:
+        srv.stop()
+
+
+@pytest.mark.slow
+@needs_recon
+def test_requests_for_one_export_are_counted_before_they_wait_for_its_build(tmp_path):
+    """``export_workers`` 1: one request builds a 48 MiB volume's .mat (seconds), 39 more for
+    the same export come meanwhile. Four wait for its build, the other 35 are refused at once
+    with 429 and ``Retry-After`` (today's main let all 39 wait for the build, each holding a
+    thread of the server's pool: 40 concurrent requests of one export held all of AnyIO's 40
+    and stalled every other route); a plain route answers while the build runs; the five
+    requests let in serve the one build's bytes."""
+    from fpscan.service.formats.result import write_volume
+
+    data = tmp_path / "data"
+    srv = Server(data, env={"FPSCAN_EXPORT_WORKERS": "1"}).start()
+    try:
+        with srv.client() as c:
+            jid = _result_job(c)
+        folder = _result_folder(data, jid)
+        n_z, n_y, n_x = 192, 256, 256
+        p0 = np.random.default_rng(4).standard_normal((n_z, n_y, n_x), dtype=np.float32)
+        write_volume(folder / "volume.h5", p0, np.arange(n_z) * 1e-5, np.arange(n_x) * 1e-4,
+                     np.arange(n_y) * 1e-4, method="ner", params={}, input_id=jid)
+        del p0
+        answers: list[tuple[int, str | None, bytes]] = []
+        built = threading.Event()
+
+        def fetch(first: bool = False) -> None:
+            with srv.client(timeout=HANG_S) as cl:
+                r = cl.get(f"/api/jobs/{jid}/export/mat")
+                answers.append((r.status_code, r.headers.get("retry-after"), r.content))
+                if first:
+                    built.set()
+
+        builder = threading.Thread(target=fetch, args=(True,))
+        builder.start()
+        deadline = time.monotonic() + HANG_S
+        while not [p for p in folder.iterdir() if ".tmp" in p.name] and not built.is_set():
+            assert time.monotonic() < deadline, "the build never started"
+            time.sleep(0.01)
+        assert not built.is_set(), "the build ended before the others came"
+        others = [threading.Thread(target=fetch) for _ in range(39)]
+        for t in others:
+            t.start()
+        while sum(s == 429 for s, _, _ in answers) < 35 and not built.is_set():  # the refusals, or the build's end
+            assert time.monotonic() < deadline, "no answer"
+            time.sleep(0.01)
+        with srv.client() as c:
+            assert c.get("/api/formats").status_code == 200
+        plain_during_build = not built.is_set()
+        for t in [builder, *others]:
+            t.join(HANG_S)
+        refused = [(s, after) for s, after, _ in answers if s == 429]
+        served = {body for s, _, body in answers if s == 200}
+        print(f"40 requests of one export, export_workers 1: {len(refused)} refused (429), "
+              f"{sum(s == 200 for s, _, _ in answers)} served")
+        assert len(answers) == 40 and len(refused) == 35, sorted(s for s, _, _ in answers)
+        assert all(after is not None and int(after) > 0 for _, after in refused), refused
+        assert plain_during_build, "a plain route waited for the build"
+        assert len(served) == 1 and len(next(iter(served))) > n_z * n_y * n_x, len(served)
     finally:
         srv.stop()
 

@@ -162,7 +162,7 @@ def test_two_imports_at_once_cannot_fill_the_disk(tmp_path):
     half = free // 2 + free // 8  # each fits alone, both do not
     assert adm.reserve("a", half) is None
     refused = adm.reserve("b", half)
-    assert refused is not None and "reserved by uploads and imports in progress" in refused, refused
+    assert refused is not None and "reserved by uploads, imports and exports in progress" in refused, refused
     assert adm.reserved() == half
     adm.release("a")
     assert adm.reserve("b", half) is None

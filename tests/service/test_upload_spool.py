@@ -86,6 +86,29 @@ def test_a_body_the_disk_cannot_take_is_refused_before_it_is_read(tight_server):
     assert "upload refused (507) before its body was spooled" in tight_server.log.read_text()
 
 
+def test_a_body_without_content_length_is_refused_with_a_true_reason(tight_server):
+    """A chunked body (no ``Content-Length``) is admitted for the upload limit plus its multipart
+    allowance (8 GiB + 1 MiB here, 4 GiB of room): 507, the reason saying so and what to do
+    (today's main said "the upload's body holds 8 GiB + 1 MiB bytes", of a body it had not seen)."""
+    from fpscan.service.api.upload_limit import MULTIPART_ALLOWANCE
+
+    conn = http.client.HTTPConnection("127.0.0.1", tight_server.port, timeout=HANG_S)
+    conn.putrequest("POST", "/api/datasets")
+    conn.putheader("Authorization", f"Bearer {TOKEN}")
+    conn.putheader("Content-Type", f"multipart/form-data; boundary={BOUNDARY}")
+    conn.putheader("Transfer-Encoding", "chunked")
+    conn.endheaders()
+    start = f'--{BOUNDARY}\r\nContent-Disposition: form-data; name="format"\r\n\r\nnpy\r\n'.encode()
+    conn.send(f"{len(start):x}\r\n".encode() + start + b"\r\n")
+    r = conn.getresponse()
+    detail = r.read().decode()
+    conn.close()
+    assert r.status == 507, detail
+    assert (f"an upload without Content-Length is admitted for up to {8 * GiB + MULTIPART_ALLOWANCE} bytes"
+            in detail), detail
+    assert "send its Content-Length" in detail and "body holds" not in detail, detail
+
+
 def test_a_body_is_spooled_in_the_data_folder_and_counted(tight_server):
     """A 3 GiB upload half sent: its spool file is open in ``<data_dir>/incoming``, none in the
     server's TMPDIR, and its 3 GiB are reserved: a second 3 GiB upload, which alone would fit
@@ -105,7 +128,7 @@ def test_a_body_is_spooled_in_the_data_folder_and_counted(tight_server):
         detail = r.read().decode()
         second.close()
         assert r.status == 507, detail
-        assert "reserved by uploads and imports in progress" in detail, detail
+        assert "reserved by uploads, imports and exports in progress" in detail, detail
     finally:
         first.close()
 
