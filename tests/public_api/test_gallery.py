@@ -55,7 +55,7 @@ def _tv_pyproximal(text: str) -> None:
         text, re.MULTILINE)}
     assert len(found) == 3, text
     warm = float(re.search(r"J\(warm start\) = ([\d.e-]+)", text)[1])
-    (j_tv, cc_tv), (j_pd, cc_pd) = found[next(k for k in found if k.startswith("tv, "))], found["PrimalDual"]
+    j_tv, j_pd = found[next(k for k in found if k.startswith("tv, "))][0], found["PrimalDual"][0]
     assert j_tv <= j_pd * 1.001 and j_pd < 0.5 * warm, found  # tv reaches PrimalDual's J on the same problem
     assert min(cc for _, cc in found.values()) > 0.85, found
 

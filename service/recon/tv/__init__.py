@@ -18,9 +18,9 @@ What a run returns: the solver's iterations converge to J's minimiser, in two ph
 (``fista``). The first, NER-preconditioned, is fast but its fixed point solves 0 ∈ P ∇f(p) +
 ∂(λ TV + positivity)(p) with f = ½‖A p − g‖² and P NER's weight, not J's minimiser; the default
 stopping rule (``tol`` 5e-3) ends there, once the image has settled (on k-Wave's vessel tree at
-11 % of the lattice: J 2.5 % above its minimum, CC 0.989 with the true p0). A run with a smaller
+11 % of the lattice: J 2.4 % above its minimum, CC 0.989 with the true p0). A run with a smaller
 ``tol`` (or 0) then goes on with exact steps, whose fixed point is J's minimiser (there, after
-300 iterations, J within 0.1 % of pyproximal's tuned PrimalDual's, CC 0.989: docs/tv-measurements.md,
+300 iterations, J 0.03 % below pyproximal's tuned PrimalDual's, CC 0.989: docs/tv-measurements.md,
 "What tv minimises"). `reconstruct_tv` is the algorithm; each of its parts is a module of this
 package, with its own public interface (its ``__all__``):
 

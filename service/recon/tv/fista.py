@@ -29,8 +29,8 @@ v ← v − (P / L) R, R = ∇f(x) + L (v − x) at x = prox(v), the residual of
 condition, so with P invertible its fixed points are exactly J's minimisers (the
 forward-backward fixed points; a preconditioned residual step as in Themelis & Patrinos,
 "SuperMann", IEEE Trans. Autom. Control 64 (2019) 4875); with P = I it is the preconditioned
-step itself. One P more per iteration and s in 16 bits: on the vessel tree J falls to within
-0.1 % of pyproximal's tuned PrimalDual after 300 iterations (docs/tv-measurements.md, "What tv
+step itself. One P more per iteration and s in 16 bits: on the vessel tree J falls 0.03 % below
+pyproximal's tuned PrimalDual's after 300 iterations (docs/tv-measurements.md, "What tv
 minimises").
 
 The in-place vector loops here are numba kernels (``cache=True``; `fpscan.service.recon.methods.tv`'s
