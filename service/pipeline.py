@@ -62,6 +62,7 @@ Examples
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from contextvars import ContextVar
@@ -77,12 +78,13 @@ from fpscan.service.recon.methods import Method, MethodOptions
 
 __all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled", "run_file",
            "Progress", "ShouldStop", "default_method", "option_rules", "check_option_values", "method_options",
-           "reconstruct"]
+           "reconstruct", "tv_problem"]
 
 if TYPE_CHECKING:
     from fpscan.service.plans import Mask, Plan
     from fpscan.service.recon.dataset import GridDataset, PointDataset
     from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.tv.formulation import TvProblem
 
     Dataset = GridDataset | PointDataset
 
@@ -474,6 +476,83 @@ def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: in
 
         datasets = [subsample(ds, plan) for ds in datasets]
     return None, datasets
+
+
+def tv_problem(dataset: Dataset, options: dict | MethodOptions | None = None, /, **given: Any) -> TvProblem:
+    """The problem ``tv`` solves for ``dataset``, for any solver: the operator A as a
+    ``pylops.LinearOperator``, the data g it fits, the warm start, the grid and the automatic λ
+    (``fpscan.service.recon.tv.formulation.TvProblem``), made by tv's own set-up on the CPU:
+
+        p0 = argmin_{p >= 0} J(p) = ½ ‖A p − g‖² + λ TV(p)
+
+    (Arridge et al., Phys. Med. Biol. 61 (2016) 8908), so that pylops' and pyproximal's solvers
+    run on fpscan's physics and compare with tv by ``objective`` (examples/plot_tv_pyproximal.py).
+
+    Parameters
+    ----------
+    dataset : GridDataset or PointDataset
+        As :func:`reconstruct`'s (grid data become one A-line per grid point).
+    options : dict or MethodOptions, optional
+        tv's options that set its problem (``sound_speed`` in m/s, ``force``, ``eps``, ``dtype``,
+        ``n_z``, ``dz`` in m, ``positivity``, ``lam``, ``whole_record``), checked by tv's model
+        as :func:`reconstruct` checks them; or give them as keywords.
+    **given
+        More options.
+
+    Returns
+    -------
+    TvProblem
+        ``operator`` (``dims`` the image's ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, ``dimsd`` the
+        A-lines' ``(n_points, n_t)``; vectors flattened in C order), ``data`` (g, float64, Pa),
+        ``warm_start`` (an image, the working dtype), ``grid``, ``lam`` (Pa), ``positivity``, the
+        axes ``z``, ``x``, ``y`` (m, on the data's lateral coordinates), ``gradient`` (TV's ∇),
+        ``preconditioner`` (tv's P), ``params``; ``objective(p)`` = J(p) in Pa².
+
+    Raises
+    ------
+    ValueError
+        What :func:`reconstruct` refuses for ``tv``; an option of tv's solver (``max_iter``,
+        ``tol``, ``time_limit``, ``debias``, ``device``), or ``sound_speed="auto"`` (the search
+        reconstructs: take the speed a ``tv`` reconstruction found, its ``params["sound_speed"]``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import fpscan
+    >>> g = np.zeros((64, 8)); g[10] = 0.5  # (n_t, n_x): a layer at depth row 10
+    >>> ds = fpscan.GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
+    >>> pb = fpscan.tv_problem(ds, n_z=16)
+    >>> pb.operator.dims, pb.data.shape, pb.warm_start.dtype, pb.positivity
+    ((16, 8), (8, 64), dtype('float32'), True)
+    >>> fpscan.tv_problem(ds, max_iter=10)
+    Traceback (most recent call last):
+    ...
+    fpscan.service.recon.checks.OptionError: tv_problem takes the options of tv's problem; max_iter sets its solver
+    """
+    from fpscan.service.recon.checks import OptionError
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.methods import tv
+
+    opts = method_options("tv", options, **given)
+    asked = opts.model_fields_set if isinstance(options, MethodOptions) else {
+        k for k, v in {**(options or {}), **given}.items() if v is not None}
+    solver = [k for k in tv.SOLVER_OPTIONS if k in asked]
+    if solver:
+        raise OptionError(f"tv_problem takes the options of tv's problem; {', '.join(solver)} "
+                          f"set{'s' if len(solver) == 1 else ''} its solver")
+    if opts.sound_speed == "auto":
+        raise OptionError("tv_problem needs the speed of sound in m/s, not 'auto' (the search reconstructs: "
+                          "take the params['sound_speed'] of fpscan.reconstruct(dataset, 'tv', sound_speed='auto'))")
+    c = float(dataset.sound_speed if opts.sound_speed is None else opts.sound_speed)
+    points = dataset.to_points() if isinstance(dataset, GridDataset) else dataset
+    assert isinstance(opts, tv.Options)  # `method_options` gives tv's own model
+    pb = tv.problem(points, c, opts)
+    shift = dataset.lateral_shift
+    if shift and any(shift):  # the image on the data's own lateral coordinates, as `reconstruct` puts it
+        y = None if pb.y is None or len(shift) < 2 else np.asarray(pb.y, dtype=np.float64) + float(shift[1])
+        pb = dataclasses.replace(pb, x=np.asarray(pb.x, dtype=np.float64) + float(shift[0]),
+                                 y=pb.y if y is None else y)
+    return pb
 
 
 def _shift_lateral(result: Reconstruction, shift: tuple[float, ...] | None) -> None:

@@ -265,4 +265,6 @@ def test_the_grid_loads_no_solver_and_the_package_exports_on_first_use():
     assert got["before"] == ["fpscan.service.recon.tv.grid"], got["before"]
     assert got["owners"] == {"TvGrid": "fpscan.service.recon.tv.grid", "noise_sigma": "fpscan.service.recon.tv.grid",
                              "reconstruct_tv": "fpscan.service.recon.tv.reconstruct",
+                             "tv_problem": "fpscan.service.recon.tv.reconstruct",
+                             "TvProblem": "fpscan.service.recon.tv.formulation",
                              "tv_grid": "fpscan.service.recon.tv.grid"}, got["owners"]

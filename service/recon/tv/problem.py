@@ -465,6 +465,11 @@ class Model:
             return apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
         return apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
+    def precondition(self, v: np.ndarray) -> np.ndarray:
+        """P v of an image (NER's weight, `fpscan.service.recon.tv.preconditioner`; v may be
+        overwritten), on the solver's device."""
+        return apply_weight(self.P, v)
+
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1
         pair = self.op._pair

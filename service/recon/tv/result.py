@@ -80,11 +80,11 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
     ...                   debiased=False, started=time.monotonic())
     >>> p["method"], p["warm_start"], p["residual"], p["norm_A"], p["stop_reason"], p["solver"]
     ('tv', 'ner', 0.0, 2.0, 'converged', 'FISTA preconditioned by NER')
-    >>> p["lam_note"].startswith("the data show no noise")
-    True
+    >>> p["lam_note"].startswith("the data show no noise"), p["exact_from"]
+    (True, None)
     """
     chosen, o = record.grid, options
-    x, it, stop_reason, change, Ax, L, lam = solved
+    x, it, stop_reason, change, Ax, L, lam, exact_from = solved
     gw_norm = float(np.linalg.norm(record.g))
     res = Ax - record.g
     params = dict(warm_params)
@@ -105,6 +105,7 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
                   solver="FISTA preconditioned by " + ("NER" if model.pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,
                   operator_pairs=model.operator_pairs, geometry_kept=geometry_kept, debias=debiased,
+                  exact_from=exact_from,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=o["time_limit"], solve_s=time.monotonic() - started)
     if lam_auto and lam == 0:  # said, not silent: on noiseless data the automatic λ has nothing to scale
