@@ -383,7 +383,7 @@ def test_installed_wheel_is_used(image_install):
     # a reconstruction (NER of one point source) and the command line, from the install
     code = ("import numpy as np, fpscan; d = np.zeros((64, 8, 8)); d[20, 4, 4] = 1.0; "
             "ds = fpscan.GridDataset(data=d, dx=1e-4, dy=1e-4, dt=2e-8, sound_speed=1500.0); "
-            "r = fpscan.reconstruct(ds, 'ner'); print(r.p0.shape, np.isfinite(r.p0).all(), r.p0.max() > 0)")
+            "r = fpscan.reconstruct(ds, 'ner', dz=3e-5); print(r.p0.shape, np.isfinite(r.p0).all(), r.p0.max() > 0)")
     res = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == ["(64,", "8,", "8)", "True", "True"], res.stdout
