@@ -22,6 +22,7 @@ import asyncio
 import io
 import json
 import os
+import secrets
 import statistics
 import sys
 import tempfile
@@ -33,7 +34,7 @@ import numpy as np
 
 from fpscan.clients.processes import start_service
 
-TOKEN = "bench-token"
+TOKEN = secrets.token_urlsafe(32)  # fpscan serve refuses a guessable token
 
 
 async def _poll_async(url: str, job_id: str, clients: int, seconds: float, interval: float,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import secrets
 import socket
 import sys
 import tempfile
@@ -31,7 +32,7 @@ import psutil
 
 from fpscan.clients.processes import start_service
 
-TOKEN = "bench-token"
+TOKEN = secrets.token_urlsafe(32)  # fpscan serve refuses a guessable token
 
 
 def _rss(pid: int) -> int:
@@ -43,11 +44,11 @@ def _held(pid: int, port: int) -> int:
                and c.status == psutil.CONN_ESTABLISHED)
 
 
-def _health(url: str, stop, results) -> None:
+def _health(url: str, token: str, stop, results) -> None:
     """Poll health every 50 ms until ``stop`` (in its own process: the readers' loop here
     holds no lock it waits for); put the latencies on ``results``."""
     latencies = []
-    with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60) as c:
+    with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=60) as c:
         while not stop.is_set():
             t0 = time.perf_counter()
             try:
@@ -84,7 +85,7 @@ def main() -> int:
                 c.get("/openapi.json")
         time.sleep(1.0)
         before = _rss(pid)
-        watcher = multiprocessing.Process(target=_health, args=(srv.url, stop, results))
+        watcher = multiprocessing.Process(target=_health, args=(srv.url, TOKEN, stop, results))
         watcher.start()
         rounds = []
         for _ in range(args.rounds):

@@ -44,6 +44,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import secrets
 import subprocess
 import sys
 import tempfile
@@ -53,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 DT, DX, C = 8e-9, 6e-5, 1500.0
-TOKEN = "bench-token"
+TOKEN = secrets.token_urlsafe(32)  # fpscan serve refuses a guessable token
 
 
 def dataset(n_t: int, n: int) -> np.ndarray:

@@ -260,7 +260,8 @@ def start_service(data_dir: str | os.PathLike, *, token: str | None = None, devi
                   web: bool = True, timeout: float = 90.0, attempts: int = 3) -> Service:
     """Start ``fpscan serve`` on a free port of 127.0.0.1 and wait until it is healthy.
 
-    ``data_dir``: its ``FPSCAN_DATA_DIR``; ``token``: ``FPSCAN_TOKEN``; ``devices``:
+    ``data_dir``: its ``FPSCAN_DATA_DIR``; ``token``: ``FPSCAN_TOKEN`` (None: a server
+    without a token, ``FPSCAN_NO_TOKEN``, loopback only); ``devices``:
     ``FPSCAN_DEVICES`` (scanner id -> device path); ``env``: further ``FPSCAN_*``
     settings (the caller's own ``FPSCAN_*`` variables are not passed on); ``web``: serve
     the web page. A port taken by another program in between is retried ``attempts``
@@ -271,7 +272,9 @@ def start_service(data_dir: str | os.PathLike, *, token: str | None = None, devi
     data_dir : str or os.PathLike
         The service's data folder (``FPSCAN_DATA_DIR``).
     token : str, optional
-        ``FPSCAN_TOKEN`` (None: no token).
+        ``FPSCAN_TOKEN`` (None: no token, ``FPSCAN_NO_TOKEN=true``). ``fpscan serve`` refuses a
+        token of under 128 bits of estimated entropy unless ``env`` allows it
+        (``FPSCAN_ALLOW_WEAK_TOKEN``).
     devices : Mapping[str, str], optional
         ``FPSCAN_DEVICES``: scanner id -> device path.
     env : Mapping[str, str], optional
@@ -301,6 +304,8 @@ def start_service(data_dir: str | os.PathLike, *, token: str | None = None, devi
     full_env = clean_env(FPSCAN_DATA_DIR=str(data_dir), PYTHONUNBUFFERED="1")
     if token:
         full_env["FPSCAN_TOKEN"] = token
+    else:
+        full_env["FPSCAN_NO_TOKEN"] = "true"
     if devices is not None:
         full_env["FPSCAN_DEVICES"] = json.dumps(dict(devices))
     full_env.update(env or {})

@@ -25,20 +25,41 @@ offset     field                 type  meaning
 
 "signal" is the FP sensor's AC output, pressure × sensitivity × DC level in Pa·V; the
 DC-normalised pressure is ``(sample·scale + offset) / dc_level`` in Pa.
+
+Each field has a documented range (docs/protocol.md §5, :data:`FIELD_RANGES`): every float
+finite; ``dc_level``, ``scale`` and ``dt`` > 0; ``timestamp``, the wavelengths and the pulse
+energy ≥ 0; samples in −32 767 … 32 767. :func:`check_aline` checks them: an A-line outside
+them is the device's fault, whatever its CRC says.
 """
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ALINE_HEADER", "META_KEYS", "ALine", "pack_aline", "unpack_aline", "quantise"]
+__all__ = ["ALINE_HEADER", "META_KEYS", "FIELD_RANGES", "SAMPLE_MIN", "ALine", "pack_aline", "unpack_aline",
+           "check_aline", "quantise"]
 
 ALINE_HEADER = struct.Struct("<IIIIQdddddffIId")
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",
              "wavelength_index", "excitation_wavelength_m")
+#: the float fields' documented ranges (docs/protocol.md §5): attribute -> (wire name, lowest
+#: value, whether the lowest is allowed, unit); every one must be finite as well
+FIELD_RANGES = {
+    "timestamp_s": ("timestamp", 0.0, True, "s"),
+    "bias_wavelength_m": ("bias_wavelength", 0.0, True, "m"),
+    "dt_s": ("dt", 0.0, False, "s"),
+    "scale": ("scale", 0.0, False, "signal per count"),
+    "offset": ("offset", -math.inf, False, "signal"),
+    "dc_level": ("dc_level", 0.0, False, "V"),
+    "pulse_energy_j": ("pulse_energy", 0.0, True, "J"),
+    "excitation_wavelength_m": ("excitation_wavelength", 0.0, True, "m"),
+}
+#: the lowest sample value a device sends (−32 768 is not used: the int16 range is symmetric)
+SAMPLE_MIN = -32767
 
 
 @dataclass(slots=True)
@@ -157,6 +178,33 @@ def unpack_aline(payload: bytes) -> ALine:
     samples = np.frombuffer(payload, dtype="<i2", offset=ALINE_HEADER.size).astype(np.int16)
     return ALine(run_id, boot_id, k, pulse, ts, bias, dt, scale, offset, dc, energy, samples,
                  w, wavelength)
+
+
+def check_aline(a: ALine) -> None:
+    """Check that every field of a received A-line lies in its documented range
+    (docs/protocol.md §5; :data:`FIELD_RANGES`, :data:`SAMPLE_MIN`).
+
+    The plan-dependent fields (run, boot, point, wavelength, ``n_t``) are the host's to
+    check against its run and plan; this checks what holds for every A-line.
+
+    Parameters
+    ----------
+    a : ALine
+        The A-line as :func:`unpack_aline` returned it.
+
+    Raises
+    ------
+    ValueError
+        The first field out of its range, named as on the wire, with its value and range.
+    """
+    for attr, (name, low, closed, unit) in FIELD_RANGES.items():
+        v = getattr(a, attr)
+        if not (math.isfinite(v) and (v >= low if closed else v > low)):
+            want = "finite" if low == -math.inf else f"finite and {'>=' if closed else '>'} {low:g}"
+            raise ValueError(f"{name} = {v!r} {unit} is out of its range ({want})")
+    if a.samples.size and int(a.samples.min()) < SAMPLE_MIN:
+        raise ValueError(f"a sample of {int(a.samples.min())} is out of the range "
+                         f"{SAMPLE_MIN} … {-SAMPLE_MIN}")
 
 
 def quantise(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
-    "MAX_CHUNK", "MAX_COMMAND", "IDN", "RESET", "CLEAR", "OPC", "SYST_ERROR", "SYST_ERROR_NEXT",
+    "MAX_CHUNK", "MIN_CHUNK", "MAX_COMMAND", "IDN", "RESET", "CLEAR", "OPC", "SYST_ERROR", "SYST_ERROR_NEXT",
     "SYST_PROTOCOL", "SYST_BOOT", "SYST_LIMITS", "PLAN_BEGIN", "PLAN_DATA", "PLAN_END", "PLAN_ID",
     "PLAN_HASH", "PLAN_POINTS", "SCAN_START", "SCAN_PAUSE", "SCAN_RESUME", "SCAN_ABORT", "SCAN_STATUS",
     "LASER_INTERLOCK", "NODES", "ScpiError", "Command", "canonical_header", "parse_command", "int_arg",
@@ -21,6 +21,9 @@ __all__ = [
 
 #: largest PLAN:DATA block, bytes
 MAX_CHUNK = 4096
+#: the least ``max_chunk`` a device may report (``SYST:LIM?``), bytes: every device takes
+#: PLAN:DATA blocks this long, the host's smallest retry chunk (docs/protocol.md §3.3, §4)
+MIN_CHUNK = 64
 #: largest command payload, bytes
 MAX_COMMAND = MAX_CHUNK + 256
 

@@ -2,20 +2,31 @@
 
 A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
 
-=================  =====================================================================
-``corrupt=RATE``   probability per byte (both directions) that the byte is replaced
-``drop=RATE``      probability per byte (both directions) that the byte is lost
-``stall=K:SEC``    before acquiring point K (once), the device goes silent for SEC s
-``reset=K``        before acquiring point K (once), the device resets (new boot id)
-``interlock=K``    before acquiring point K (once), the laser interlock opens
-``interlock=K:SEC``  … and closes again after SEC s
-``seq=K:SEQ``      before acquiring point K (once), the data sequence skips to SEQ (a
-                   firmware fault): that A-line is sent with seq SEQ (0 … 2³² − 1), the
-                   next ones continue from SEQ + 1 (mod 2³²)
-``point=K:P``      A-line K is sent (once) as point P (0 … 2³² − 1), a firmware fault
-=================  =====================================================================
+=====================  =====================================================================
+``corrupt=RATE``       probability per byte (both directions) that the byte is replaced
+``drop=RATE``          probability per byte (both directions) that the byte is lost
+``stall=K:SEC``        before acquiring point K (once), the device goes silent for SEC s
+``reset=K``            before acquiring point K (once), the device resets (new boot id)
+``reset=K:N``          … each of the first N times it comes to point K (N ≥ 1): a device that
+                       resets at one point over and over (N = 1000: every time, in practice)
+``interlock=K``        before acquiring point K (once), the laser interlock opens
+``interlock=K:SEC``    … and closes again after SEC s
+``seq=K:SEQ``          before acquiring point K (once), the data sequence skips to SEQ (a
+                       firmware fault): that A-line is sent with seq SEQ (0 … 2³² − 1), the
+                       next ones continue from SEQ + 1 (mod 2³²)
+``point=K:P``          A-line K is sent (once) as point P (0 … 2³² − 1), a firmware fault
+``ignore_acks=K``      from A-line K on (once), the device ignores ACK and NAK frames until the
+                       run ends, a firmware fault: it resends its oldest unacknowledged A-line
+                       every RTO and acquires nothing new once its window is full
+``field=K:NAME:V``     A-line K is sent (once) with its field NAME set to V, a firmware fault:
+                       NAME one of the A-line's float fields as on the wire (``timestamp``,
+                       ``bias_wavelength``, ``dt``, ``scale``, ``offset``, ``dc_level``,
+                       ``pulse_energy``, ``excitation_wavelength``; V a float, ``nan`` and
+                       ``inf`` included) or ``sample`` (its first sample, V an int16)
+=====================  =====================================================================
 
-Example: ``corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200``.
+Example: ``corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200``,
+``field=40:dc_level:0``, ``reset=60:1000``.
 """
 from __future__ import annotations
 
@@ -23,7 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FaultSpec", "damage"]
+__all__ = ["FIELD_NAMES", "FaultSpec", "damage"]
+
+#: the A-line fields ``field=K:NAME:V`` may set (docs/protocol.md §5), by their wire names
+FIELD_NAMES = ("timestamp", "bias_wavelength", "dt", "scale", "offset", "dc_level", "pulse_energy",
+               "excitation_wavelength", "sample")
 
 
 @dataclass
@@ -38,8 +53,8 @@ class FaultSpec:
         Probability per byte (both directions) that the byte is lost, in [0, 1).
     stalls : dict[int, float]
         Point k -> seconds the device goes silent before acquiring it (once).
-    resets : set[int]
-        Points before which the device resets (once; new boot id).
+    resets : dict[int, int]
+        Point k -> how many times the device resets (new boot id) when it comes to it.
     interlocks : dict[int, float]
         Point k -> seconds the laser interlock stays open from before acquiring it (once;
         ``inf``: until it is closed by hand).
@@ -49,15 +64,22 @@ class FaultSpec:
     bad_points : dict[int, int]
         Point k -> the point index (u32) its A-line frame carries instead (once): a device
         fault too.
+    ignore_acks : set[int]
+        A-lines from which on the device ignores ACKs and NAKs until the run ends (once).
+    bad_fields : dict[int, tuple[str, float]]
+        Point k -> (field name of :data:`FIELD_NAMES`, value) its A-line frame carries
+        instead (once): a field out of its range is a device fault too.
     """
 
     corrupt: float = 0.0
     drop: float = 0.0
     stalls: dict[int, float] = field(default_factory=dict)
-    resets: set[int] = field(default_factory=set)
+    resets: dict[int, int] = field(default_factory=dict)
     interlocks: dict[int, float] = field(default_factory=dict)
     seq_skips: dict[int, int] = field(default_factory=dict)
     bad_points: dict[int, int] = field(default_factory=dict)
+    bad_fields: dict[int, tuple[str, float]] = field(default_factory=dict)
+    ignore_acks: set[int] = field(default_factory=set)
 
     @classmethod
     def parse(cls, spec: str | None) -> FaultSpec:
@@ -93,27 +115,40 @@ class FaultSpec:
                 raise ValueError("stall needs K >= 0 and 0 <= SEC <= 3600")
             self.stalls[int(k)] = seconds
         elif key == "reset":
-            if int(value) < 0:
-                raise ValueError("K must be >= 0")
-            self.resets.add(int(value))
+            k, _, times = value.partition(":")
+            if int(k) < 0 or int(times or 1) < 1:
+                raise ValueError("reset needs K >= 0 and N >= 1")
+            self.resets[int(k)] = int(times or 1)
         elif key == "interlock":
             k, _, sec = value.partition(":")
             seconds = float(sec) if sec else float("inf")
             if int(k) < 0 or not seconds > 0:
                 raise ValueError("interlock needs K >= 0 and SEC > 0")
             self.interlocks[int(k)] = seconds
-        elif key == "seq":
-            k, _, seq = value.partition(":")
-            if int(k) < 0 or not 0 <= int(seq) <= 0xFFFFFFFF:
-                raise ValueError("seq needs K >= 0 and 0 <= SEQ <= 4294967295")
-            self.seq_skips[int(k)] = int(seq)
-        elif key == "point":
-            k, _, point = value.partition(":")
-            if int(k) < 0 or not 0 <= int(point) <= 0xFFFFFFFF:
-                raise ValueError("point needs K >= 0 and 0 <= P <= 4294967295")
-            self.bad_points[int(k)] = int(point)
+        elif key in ("seq", "point"):  # K:SEQ, K:P: a u32 at A-line K
+            k, _, number = value.partition(":")
+            if int(k) < 0 or not 0 <= int(number) <= 0xFFFFFFFF:
+                raise ValueError(f"{key} needs K >= 0 and 0 <= {'SEQ' if key == 'seq' else 'P'} <= 4294967295")
+            (self.seq_skips if key == "seq" else self.bad_points)[int(k)] = int(number)
+        elif key == "field":
+            self._add_field(value)
+        elif key == "ignore_acks":
+            if int(value) < 0:
+                raise ValueError("K must be >= 0")
+            self.ignore_acks.add(int(value))
         else:
             raise ValueError("unknown fault")
+
+    def _add_field(self, value: str) -> None:
+        """Add one ``field=K:NAME:V`` item; raises ``ValueError`` with what is wrong."""
+        k, _, rest = value.partition(":")
+        name, _, v = rest.partition(":")
+        if int(k) < 0 or name not in FIELD_NAMES:
+            raise ValueError(f"field needs K >= 0 and a NAME of {', '.join(FIELD_NAMES)}")
+        number = float(v)
+        if name == "sample" and not (number.is_integer() and -32768 <= number <= 32767):
+            raise ValueError("a sample is an int16")
+        self.bad_fields[int(k)] = (name, number)
 
     @property
     def damages_bytes(self) -> bool:

@@ -11,8 +11,11 @@ data* and refuses:
 - external links (``h5py.ExternalLink``: would open another file of the server),
 - datasets with HDF5 external storage (raw data in other files, e.g. ``/etc/passwd``),
 - virtual datasets (their sources are other files),
-- datasets whose declared size (shape × dtype) exceeds ``max_bytes`` (the caller derives
-  it from the upload and memory limits), and datasets without filters whose allocated
+- datasets whose declared sizes (shape × dtype) exceed ``max_bytes`` (the caller derives
+  it from the upload and memory limits), one alone or all together, nested groups included and
+  each link to a dataset counted (a reader that follows every link of a group, a MATLAB
+  struct's fields, reads a dataset linked twice twice: a file of one 60 MB dataset linked
+  20 times would decode 1.2 GB), and datasets without filters whose allocated
   storage is smaller than declared (unwritten chunks read as the fill value: a 1.5 kB
   file can declare gigabytes),
 - chunked datasets, filtered (gzip, ...) or not, with chunks that were never written (they
@@ -76,7 +79,8 @@ def check_hdf5_file(f: Any, *, max_bytes: int) -> None:
     f : h5py.File
         Open read-only.
     max_bytes : int
-        The most bytes any one dataset may declare.
+        The most bytes the file's datasets may declare, any one and all together (each link
+        to a dataset counted).
 
     Raises
     ------
@@ -109,6 +113,9 @@ def check_hdf5_file(f: Any, *, max_bytes: int) -> None:
     if problems:
         raise ValueError(problems[0])
     declared, stored = sizes
+    if declared > max_bytes:
+        raise ValueError(f"the file's datasets declare {declared} bytes together (every link counted), more than "
+                         f"the limit of {max_bytes} bytes")
     if declared > MAX_RATIO * stored + SMALL_BYTES:
         raise ValueError(f"the file's datasets declare {declared} bytes but store {stored} (more than "
                          f"{MAX_RATIO}:1, beyond what real data compresses to; refused)")

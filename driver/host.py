@@ -35,8 +35,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fpscan.driver import commands as cmd
-from fpscan.driver.aline import ALINE_HEADER, ALine, unpack_aline
-from fpscan.driver.commands import MAX_CHUNK
+from fpscan.driver.aline import ALINE_HEADER, ALine, check_aline, unpack_aline
+from fpscan.driver.commands import MAX_CHUNK, MIN_CHUNK
 from fpscan.driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
 from fpscan.driver.plan import aline_index, aline_order, load_plan, wavelength_order
 from fpscan.driver.plan_image import plan_image
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     import serial
 
 __all__ = [
-    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceFault", "DeviceStatus",
+    "MAX_RESETS", "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceFault", "DeviceStatus",
     "ScanProgress", "ScanResult", "Scanner", "ScanSession",
 ]
 
@@ -57,6 +57,11 @@ _NAK_MAX = 256  #: sequence numbers per NAK frame (docs/protocol.md §7)
 _NAK_EVERY = 0.1  #: shortest interval between two NAKs of one sequence number, s
 _NAK_LOOK = 8192  #: most sequence numbers above the cumulative ACK looked at for one NAK
 _EARLY_MAX = 64  #: most A-line frames kept that overtook their run's SCAN:STAR reply
+#: device resets (or plans lost) one call of :meth:`Scanner.scan` recovers from by default; the
+#: next one is a device fault (docs/protocol.md §10). A sound scanner resets rarely (a power
+#: glitch, a watchdog): eight in one scan is a scanner that will not get through it, and a
+#: scanner that resets at one point every time would otherwise keep the host re-uploading forever
+MAX_RESETS = 8
 
 
 class DriverError(RuntimeError):
@@ -118,11 +123,13 @@ class InterlockOpen(DeviceError):
 
 class DeviceFault(DriverError):
     """The device sent a number that no plan allows: a data sequence number outside its run,
-    an A-line of a point, wavelength or length the plan does not have, a malformed
-    ``SCAN:STAR`` reply. Its frame's CRC-32 was good, so this is the device's (firmware's)
-    fault, not the link's: :meth:`Scanner.scan` stops at the first one (the device left
-    idle), its scan file keeps every A-line received so far, and a new call resumes from
-    there (docs/protocol.md §7).
+    an A-line of a point, wavelength or length the plan does not have, an A-line field out of
+    its documented range (a ``dc_level`` ≤ 0, a NaN ``scale``), a malformed ``SCAN:STAR`` or
+    ``SYST:LIM?`` reply, a ``max_chunk`` below the protocol's minimum; or it reset more often
+    than one scan recovers from (``max_resets``). Its frame's CRC-32 was good, so this is the
+    device's (firmware's) fault, not the link's: :meth:`Scanner.scan` stops at the first one
+    (the device left idle), its scan file keeps every A-line received so far, and a new call
+    resumes from there (docs/protocol.md §7, §10).
 
     Parameters
     ----------
@@ -299,13 +306,17 @@ class Scanner:
         thread). URL transports are always read directly.
     lock_timeout : float, optional
         How long to retry a port locked by another process, s (default 2).
+    max_resets : int, optional
+        Device resets (or plans lost) one call of :meth:`scan` recovers from, 0 … 1000
+        (default :data:`MAX_RESETS`, 8); the next one stops the scan with a
+        :class:`DeviceFault` (a rerun starts a new count).
 
     Attributes
     ----------
     port : str
         As given.
-    window, retry, response_timeout, stall_timeout
-        The settings as given (int, then floats).
+    window, retry, response_timeout, stall_timeout, max_resets
+        The settings as given (int, floats, int).
     faults : collections.Counter
         Link faults recovered since the port was opened (``bad_frames``, ``bad_alines``,
         ``naks``, ``command_retries``, ``upload_retries``, ``stall_polls``, ``resets``).
@@ -317,16 +328,20 @@ class Scanner:
     DriverError
         The port cannot be opened or is locked by another process (exclusive ``flock``).
     ValueError
-        A bad ``reader`` or ``window``.
+        A bad ``reader``, ``window`` or ``max_resets``.
     """
 
     def __init__(self, port: str, *, window: int = 256, retry: float = 0.15,
                  response_timeout: float = 10.0, stall_timeout: float = 1.0,
-                 baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0):
+                 baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0,
+                 max_resets: int = MAX_RESETS):
         if reader not in READER_MODES:
             raise ValueError(f"reader must be 'process', 'thread' or 'direct', not {reader!r}")
         if not 1 <= int(window) <= 65535:
             raise ValueError(f"window must be in 1..65535 A-lines, got {window}")
+        if not 0 <= int(max_resets) <= 1000:
+            raise ValueError(f"max_resets must be in 0..1000, got {max_resets}")
+        self.max_resets = int(max_resets)
         self.port = port
         self.window = int(window)
         self.retry = float(retry)
@@ -351,7 +366,10 @@ class Scanner:
         #: seq -> retransmissions of a recent command still counted as faults
         self._retransmitted: dict[int, int] = {}
         self._device_busy = False
-        self._old_boots: set[int] = set()
+        #: boot ids of the device's last boots before this one: A-lines of those are stale,
+        #: not a reset. One scan sees at most max_resets + 1 boots, and an old boot's A-lines
+        #: arrive just after its reset or never, so the last max_resets + 1 are kept
+        self._old_boots: collections.deque[int] = collections.deque(maxlen=self.max_resets + 1)
         self._max_chunk = MAX_CHUNK
         self._write(b"\x00")  # terminate any partial frame a previous host left behind
 
@@ -500,21 +518,31 @@ class Scanner:
     def identify(self) -> dict:
         """``*IDN?`` and protocol checks. Returns the instrument dict for the scan file.
 
-        Raises :class:`DriverError` if the device speaks another protocol version.
+        Raises :class:`DriverError` if the device speaks another protocol version,
+        :class:`DeviceFault` if its ``SYST:LIM?`` reply is not four non-negative integers or
+        its ``max_chunk`` is below :data:`fpscan.driver.commands.MIN_CHUNK` (64 bytes: the
+        protocol's minimum; plan chunks are never smaller than that).
         """
         idn = self.query(cmd.IDN)
         version = self.query(cmd.SYST_PROTOCOL)
         if version.strip() != str(PROTOCOL_VERSION):
             raise DriverError(f"device speaks protocol {version!r}, host {PROTOCOL_VERSION}")
         parts = [p.strip() for p in idn.split(",")] + [""] * 4
+        reply = self.query(cmd.SYST_LIMITS)
         try:
-            limits = [int(x) for x in self.query(cmd.SYST_LIMITS).split(",")]
+            limits = [int(x) for x in reply.split(",")]
         except ValueError:
-            raise DriverError("malformed SYST:LIM? reply") from None
+            limits = []
+        if len(limits) != 4 or min(limits) < 0:
+            raise DeviceFault(f"malformed SYST:LIM? reply {reply[:80]!r}: four non-negative integers "
+                              "(max_points, max_samples, max_window, max_chunk) expected")
+        if limits[3] < MIN_CHUNK:
+            raise DeviceFault(f"the scanner's max_chunk is {limits[3]} bytes, below the protocol's "
+                              f"minimum of {MIN_CHUNK} (docs/protocol.md §3.3): no plan can be uploaded "
+                              "in chunks it takes")
         status = self.status()
         self._boot_id = status.boot_id
-        if len(limits) == 4 and limits[3] > 0:
-            self._max_chunk = min(MAX_CHUNK, limits[3])
+        self._max_chunk = min(MAX_CHUNK, limits[3])
         return {"idn": idn, "manufacturer": parts[0], "model": parts[1], "serial": parts[2],
                 "firmware": parts[3], "protocol": PROTOCOL_VERSION, "port": self.port,
                 "boot_id": status.boot_id,
@@ -566,7 +594,8 @@ class Scanner:
     def _send_image(self, image: bytes) -> None:
         """``PLAN:DATA`` chunks of up to max_chunk bytes. On a noisy link a long command
         rarely arrives intact, so a chunk that gets no reply is retried 8 times smaller
-        (>= 64 B), and the size doubles again after 4 chunks in a row got through."""
+        (>= :data:`~fpscan.driver.commands.MIN_CHUNK` B, which :meth:`identify` made sure the
+        device takes), and the size doubles again after 4 chunks in a row got through."""
         chunk = self._max_chunk
         off = streak = 0
         last = time.monotonic()
@@ -578,7 +607,7 @@ class Scanner:
             except DeviceTimeout:
                 if time.monotonic() - last > self.response_timeout:
                     raise
-                chunk, streak = max(64, chunk // 8), 0
+                chunk, streak = max(MIN_CHUNK, chunk // 8), 0
                 self.faults["upload_retries"] += 1
                 continue
             off += len(piece)
@@ -636,8 +665,8 @@ class Scanner:
 
     def _recover_reset(self, plan: dict) -> None:
         """The device rebooted: wait for it, re-identify and re-upload the plan."""
-        if self._boot_id is not None:
-            self._old_boots.add(self._boot_id)
+        if self._boot_id is not None and self._boot_id not in self._old_boots:
+            self._old_boots.append(self._boot_id)
         deadline = time.monotonic() + self.response_timeout
         while True:
             try:
@@ -746,12 +775,16 @@ class ScanSession:
         self.t_last: float | None = None
         self.last_prog = 0.0
         self.aborted = False
+        self.resets = 0  #: device resets (or plans lost) recovered in this call
         # silence that means a stall: at least stall_timeout, and 3 point periods at the
         # plan's PRF (a slow laser or many averages is not a stall)
         prf = float(acq.get("prf") or 0.0)
         self.silence = scanner.stall_timeout
         if prf > 0:
             self.silence = max(self.silence, 3.0 * int(acq.get("averages", 1)) / prf)
+        #: the longest a running (not paused) device may go without a new A-line, silent or
+        #: repeating old ones, before the scan ends with DeviceTimeout, s
+        self.no_progress = max(3 * scanner.response_timeout, 10 * self.silence)
 
     # ------------------------------------------------------------------ the call
     def run(self, upload: bool = True) -> ScanResult:
@@ -800,16 +833,14 @@ class ScanSession:
     def _acquire(self) -> None:
         """Runs from the first missing A-line until the record is complete or aborted."""
         sc = self.sc
-        lost_plan = 0
         while not self.done_s.all():
             start = int(np.argmin(self.done_s))
             try:
                 reply = sc.query(cmd.scan_start(start))
             except DeviceError as exc:
-                if exc.code != 103 or lost_plan >= 3:
+                if exc.code != 103:
                     raise
-                lost_plan += 1  # "no plan": the device reset since the upload
-                sc.faults["resets"] += 1
+                self._count_reset()  # "no plan": the device reset since the upload
                 sc._recover_reset(self.plan)
                 continue
             try:
@@ -834,9 +865,20 @@ class ScanSession:
                 self.aborted = True
                 return
             if outcome == "reset":
-                sc.faults["resets"] += 1
+                self._count_reset()
                 self.report("recovering", force=True)
                 sc._recover_reset(self.plan)
+
+    def _count_reset(self) -> None:
+        """Count one device reset of this scan (a new boot id, or a plan lost: the device reset
+        unseen); the one past ``max_resets`` raises :class:`DeviceFault` instead of being
+        recovered."""
+        sc = self.sc
+        self.resets += 1
+        if self.resets > sc.max_resets:
+            self._raise_fault(f"the scanner reset {self.resets} times during this scan; the host "
+                              f"recovers from {sc.max_resets}")
+        sc.faults["resets"] += 1
 
     def result(self) -> ScanResult:
         t_end = time.monotonic()
@@ -867,7 +909,8 @@ class ScanSession:
 
         What the frame claims is checked against the plan before anything is kept: a
         sequence number outside the run, a point, wavelength or sample count the plan does
-        not have, or a payload that does not parse is a device fault (:class:`DeviceFault`,
+        not have, a field out of its documented range (``fpscan.driver.aline.check_aline``:
+        a ``dc_level`` ≤ 0, a NaN ``scale``, …) or a payload that does not parse is a device fault (:class:`DeviceFault`,
         raised by the receive loop; no A-line after it is taken), never bookkeeping of the
         size the device claims."""
         run = self.current
@@ -898,6 +941,11 @@ class ScanSession:
             self._device_fault(run, f"A-line (seq {fr.seq}) of point {k}, wavelength {w} with "
                                     f"{a.samples.size} samples; the plan has {self.n} points, {self.n_w} "
                                     f"wavelengths, {self.n_t} samples")
+            return
+        try:
+            check_aline(a)  # every field in its documented range (docs/protocol.md §5)
+        except ValueError as exc:
+            self._device_fault(run, f"A-line (seq {fr.seq}) of point {k}, wavelength {w}: {exc}")
             return
         if not run.accept(off):
             self.counters["duplicates"] += 1
@@ -962,7 +1010,11 @@ class ScanSession:
                 self.send_ack()
                 return "done"
             self.report("paused" if paused else "running")
-            if time.monotonic() - run.last_rx > (2 * self.silence if paused else self.silence):
+            now = time.monotonic()
+            # a silent device, or one whose frames all repeat what is already here (a device that
+            # ignores ACKs resends its oldest A-line for ever): poll it
+            if now - run.last_rx > (2 * self.silence if paused else self.silence) or \
+                    not paused and now - run.last_new > self.no_progress:
                 outcome = self._on_silence(paused)
                 if outcome:
                     return outcome
@@ -1019,8 +1071,7 @@ class ScanSession:
             self._raise_interlock()
         if st.state == "IDLE" and not self.done_s.all():
             return "restart"  # the run ended with A-lines missing: start again
-        if not paused and time.monotonic() - run.last_new > max(
-                3 * sc.response_timeout, 10 * self.silence):
+        if not paused and time.monotonic() - run.last_new > self.no_progress:
             raise DeviceTimeout(f"{sc.port} reports {st.state} but delivered no new "
                                 f"A-line for {time.monotonic() - run.last_new:.0f} s")
         self.send_ack([run.seq(o) for o in run.missing()] or None)

@@ -119,6 +119,9 @@ class SimConfig:
         Most samples per A-line, 1 … 32768.
     max_window : int
         Largest credit window the device honours, frames, 1 … 65535.
+    max_chunk : int
+        Largest ``PLAN:DATA`` block the device takes (and ``SYST:LIM?`` reports), bytes,
+        1 … 4096; below 64 (the protocol's minimum) it is a faulty device the host refuses.
     rto : float
         Retransmission timeout without ACK progress, s.
     serial : str
@@ -146,6 +149,7 @@ class SimConfig:
     max_points: int = 1 << 20
     max_samples: int = 32768
     max_window: int = 256
+    max_chunk: int = scpi.MAX_CHUNK
     rto: float = 0.1  #: retransmission timeout without ack progress, s
     serial: str = "SIM0001"
     precompute: bool = False  #: generate all A-lines of a plan at PLAN:END
@@ -165,6 +169,7 @@ class SimConfig:
             ("max_points", 1 <= self.max_points <= 1 << 24, "in 1..2^24"),
             ("max_samples", 1 <= self.max_samples <= 32768, "in 1..32768"),
             ("max_window", 1 <= self.max_window <= 65535, "in 1..65535"),
+            ("max_chunk", 1 <= self.max_chunk <= scpi.MAX_CHUNK, f"in 1..{scpi.MAX_CHUNK}"),
             ("rto", self.rto > 0, "> 0 s"),
         ]
         for name, ok, what in checks:
@@ -247,10 +252,12 @@ class SimulatedScanner:
         self._lock = threading.Lock()
         self._fault_rng = np.random.default_rng([self.config.seed, 1])
         self._stalls = dict(self.config.faults.stalls)
-        self._resets = set(self.config.faults.resets)
+        self._resets = dict(self.config.faults.resets)
         self._interlocks = dict(self.config.faults.interlocks)
         self._seq_skips = dict(self.config.faults.seq_skips)
         self._bad_points = dict(self.config.faults.bad_points)
+        self._bad_fields = dict(self.config.faults.bad_fields)
+        self._ignore_acks_at = set(self.config.faults.ignore_acks)
         self._records: dict[str, dict] = {}
         self._record_order: list[str] = []
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="fpsim-gen")
@@ -331,6 +338,7 @@ class SimulatedScanner:
         self._ready_k = -1
         self._ready_t = 0.0
         self._interlock_until = 0.0
+        self._ignoring_acks = False  #: the ignore_acks fault holds until the run ends
         self._out = bytearray()
         self._deframer = Deframer()
         self._tokens = 0.0
@@ -463,6 +471,8 @@ class SimulatedScanner:
             self._last_cmd, self._last_reply = key, wire
             self._emit(wire)
         elif t in (FrameType.ACK, FrameType.NAK):
+            if self._ignoring_acks:
+                return
             self._on_ack(frame.ack, frame.window)
             if t == FrameType.NAK:
                 n = len(frame.payload) // 4
@@ -527,25 +537,8 @@ class SimulatedScanner:
         while (self._next_k < plan.n_alines and len(self._unacked) < self._window
                and len(self._out) < (1 << 18)):
             k = self._next_k
-            if k in self._stalls:
-                self._stall_until = now + self._stalls.pop(k)
-                self.stats["stalls"] += 1
+            if self._fault_before(k, now):
                 return
-            if k in self._resets:
-                self._resets.discard(k)
-                self.stats["resets"] += 1
-                self._do_reset()
-                return
-            if k in self._interlocks:
-                duration = self._interlocks.pop(k)
-                self._interlock_until = now + duration if math.isfinite(duration) else math.inf
-                self._state = "FAULT"
-                self._push_error(101, "Laser interlock open")
-                self._send(FrameType.EVENT, b"INTERLOCK 1")
-                return
-            if k in self._seq_skips:  # a firmware fault: the data sequence skips ahead
-                self._next_seq = self._seq_skips.pop(k)
-                self.stats["seq_skips"] += 1
             fut = self._block(k // BLOCK)
             if not fut.done():  # the source is still computing: look again in 5 ms
                 self._wake = now + 0.005
@@ -594,6 +587,35 @@ class SimulatedScanner:
                        else "waits_output"] += 1
         self._maybe_finish()
 
+    def _fault_before(self, k: int, now: float) -> bool:
+        """Inject the faults set for A-line ``k`` (:mod:`fpscan.driver.faults`); True when one
+        stops the acquisition (a stall, a reset or an open interlock)."""
+        if k in self._stalls:
+            self._stall_until = now + self._stalls.pop(k)
+            self.stats["stalls"] += 1
+            return True
+        if k in self._resets:
+            self._resets[k] -= 1
+            if not self._resets[k]:
+                del self._resets[k]
+            self.stats["resets"] += 1
+            self._do_reset()
+            return True
+        if k in self._interlocks:
+            duration = self._interlocks.pop(k)
+            self._interlock_until = now + duration if math.isfinite(duration) else math.inf
+            self._state = "FAULT"
+            self._push_error(101, "Laser interlock open")
+            self._send(FrameType.EVENT, b"INTERLOCK 1")
+            return True
+        if k in self._seq_skips:  # a firmware fault: the data sequence skips ahead
+            self._next_seq = self._seq_skips.pop(k)
+            self.stats["seq_skips"] += 1
+        if k in self._ignore_acks_at:  # a firmware fault: ACKs and NAKs ignored until the run ends
+            self._ignore_acks_at.discard(k)
+            self._ignoring_acks = True
+        return False
+
     def _preparation(self, s: int) -> float:
         """Seconds before A-line ``s`` can fire after the previous one (module docstring)."""
         cfg = self.config
@@ -611,9 +633,21 @@ class SimulatedScanner:
         b = self._block(s // BLOCK).result()
         j = s % BLOCK
         k, w = int(self._order[0][s]), int(self._order[1][s])
-        payload = pack_aline(self._run_id, self._boot_id, self._bad_points.pop(s, k), self._pulses, timestamp,
-                             b["bias"][j], plan.dt, b["scale"][j], 0.0, b["dc"][j],
-                             b["energy"][j], b["samples"][j], w, plan.wavelengths[w])
+        fields = {"timestamp": timestamp, "bias_wavelength": b["bias"][j], "dt": plan.dt,
+                  "scale": b["scale"][j], "offset": 0.0, "dc_level": b["dc"][j],
+                  "pulse_energy": b["energy"][j], "excitation_wavelength": plan.wavelengths[w]}
+        samples = b["samples"][j]
+        if s in self._bad_fields:  # a firmware fault: one field out of its range
+            name, value = self._bad_fields.pop(s)
+            if name == "sample":
+                samples = samples.copy()
+                samples[0] = int(value)
+            else:
+                fields[name] = value
+        payload = pack_aline(self._run_id, self._boot_id, self._bad_points.pop(s, k), self._pulses,
+                             fields["timestamp"], fields["bias_wavelength"], fields["dt"], fields["scale"],
+                             fields["offset"], fields["dc_level"], fields["pulse_energy"], samples, w,
+                             fields["excitation_wavelength"])
         seq = self._next_seq
         self._next_seq = (seq + 1) & 0xFFFFFFFF
         wire = encode_frame(FrameType.ALINE, payload, seq=seq, ack=self._last_cmd[0]
@@ -721,7 +755,7 @@ class SimulatedScanner:
 
     def _cmd_lim(self, cmd: scpi.Command) -> bytes:
         c = self.config
-        return f"{c.max_points},{c.max_samples},{c.max_window},{scpi.MAX_CHUNK}".encode()
+        return f"{c.max_points},{c.max_samples},{c.max_window},{c.max_chunk}".encode()
 
     def _require_idle(self) -> None:
         if self._state in ("RUNNING", "PAUSED"):
@@ -748,9 +782,9 @@ class SimulatedScanner:
         block = cmd.block
         if block is None:
             raise _Error(-104, "Data type error; PLAN:DATA needs a definite-length block")
-        if len(block) > scpi.MAX_CHUNK:
+        if len(block) > self.config.max_chunk:
             raise _Error(-223, f"Too much data; chunk of {len(block)} bytes "
-                               f"(max {scpi.MAX_CHUNK})")
+                               f"(max {self.config.max_chunk})")
         have = len(self._plan_image)
         if not 0 <= offset <= have:
             raise _Error(-222, f"Data out of range; chunk offset {offset}, expected <= {have}")
@@ -863,6 +897,7 @@ class SimulatedScanner:
         self._unacked.clear()
         self._resend.clear()
         self._resend_set.clear()
+        self._ignoring_acks = False
 
     def _cmd_scan_abort(self, cmd: scpi.Command) -> None:
         self._abort()

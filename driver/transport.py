@@ -14,30 +14,38 @@ Readers (``open_reader(ser, mode)``):
   :mod:`fpscan.driver.relay` drains the tty into a 1 MiB pipe, immune to this interpreter's lock;
   if the relay ends, the port is read directly from then on.
 - :class:`ThreadReader` (``"thread"``): pyserial's :class:`serial.threaded.ReaderThread`
-  with a protocol that queues what it receives.
+  with a protocol that queues what it receives, at most :data:`THREAD_QUEUE_BYTES` not yet
+  read: a device that sends more while nobody reads (a flood) has it discarded, and the next
+  ``read()`` raises :class:`TransportError` saying so (the host's "device lost").
 - :class:`DirectReader` (``"direct"``, and always for URL transports such as
   ``socket://`` or ``loop://``, which have no descriptor): pyserial reads in the calling
   thread.
 """
 from __future__ import annotations
 
+import collections
 import os
-import queue
 import select
 import subprocess
 import sys
+import threading
 
 import serial
 from serial.threaded import Protocol, ReaderThread
 
 __all__ = [
-    "READER_MODES", "RELAY_START_TIMEOUT", "TransportError", "DirectReader", "ThreadReader", "RelayReader",
+    "READER_MODES", "RELAY_START_TIMEOUT", "THREAD_QUEUE_BYTES", "TransportError", "DirectReader", "ThreadReader", "RelayReader",
     "open_reader",
 ]
 
 READER_MODES = ("process", "thread", "direct")
 _WAIT = 0.02  #: longest wait for the first byte of a read(), s
 RELAY_START_TIMEOUT = 10.0  #: longest wait for the relay process to start reading, s
+#: most bytes the reader thread holds that nobody has read yet. Twice what a device under the
+#: host's credit window has in flight at most (256 A-line frames of the longest A-line,
+#: 65 kB each: 17 MB), so a sound device never reaches it while the host is slow to read; a
+#: device that sends more (a flood) has the excess discarded and the next read says so
+THREAD_QUEUE_BYTES = 32 << 20
 
 
 class TransportError(OSError):
@@ -82,10 +90,54 @@ class DirectReader:
         pass
 
 
-class _QueueProtocol(Protocol):
-    """A ``serial.threaded`` protocol that hands received chunks to a queue."""
+class _ByteQueue:
+    """Chunks received and not yet read, at most ``max_bytes`` of them (thread-safe).
 
-    def __init__(self, q: queue.SimpleQueue) -> None:
+    Once a chunk would take it past ``max_bytes``, everything held and everything that
+    arrives after is discarded (and counted) until :meth:`take` reports it: memory stays
+    bounded whatever the device sends."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self._cond = threading.Condition()
+        self._chunks: collections.deque[bytes] = collections.deque()
+        self._size = 0
+        self._discarded = 0
+        self._error: BaseException | None = None
+
+    def put(self, data: bytes) -> None:
+        with self._cond:
+            if self._discarded or self._size + len(data) > self.max_bytes:
+                self._discarded += self._size + len(data)
+                self._chunks.clear()
+                self._size = 0
+            else:
+                self._chunks.append(data)
+                self._size += len(data)
+            self._cond.notify()
+
+    def fail(self, exc: BaseException) -> None:
+        with self._cond:
+            self._error = exc
+            self._cond.notify()
+
+    def take(self, timeout: float) -> tuple[bytes, int, BaseException | None]:
+        """What arrived (waiting up to ``timeout`` s for it), the bytes discarded since the
+        last call, and the reader's error (it stopped) once every byte before it was taken."""
+        with self._cond:
+            if not (self._chunks or self._discarded or self._error):
+                self._cond.wait(timeout)
+            data = b"".join(self._chunks)
+            self._chunks.clear()
+            self._size = 0
+            discarded, self._discarded = self._discarded, 0
+            return data, discarded, None if data else self._error
+
+
+class _QueueProtocol(Protocol):
+    """A ``serial.threaded`` protocol that hands received chunks to a :class:`_ByteQueue`."""
+
+    def __init__(self, q: _ByteQueue) -> None:
         self._q = q
 
     def connection_made(self, transport: ReaderThread) -> None:
@@ -96,11 +148,16 @@ class _QueueProtocol(Protocol):
 
     def connection_lost(self, exc: BaseException | None) -> None:
         if exc is not None:
-            self._q.put(exc)
+            self._q.fail(exc)
 
 
 class ThreadReader:
     """pyserial's ``ReaderThread`` drains the port; :meth:`read` collects its chunks.
+
+    At most ``max_bytes`` received bytes wait for :meth:`read`: beyond that (a device that
+    floods a host that is not reading) what is held and what follows is discarded until the
+    next :meth:`read`, which raises :class:`TransportError` with the count instead of
+    returning data (the bytes are lost: the caller's protocol recovers or gives up).
 
     Parameters
     ----------
@@ -108,29 +165,28 @@ class ThreadReader:
         The open pyserial port.
     port : str, optional
         Its name in error messages (default the port's own ``port`` attribute).
+    max_bytes : int, optional
+        The most bytes held for :meth:`read` (default :data:`THREAD_QUEUE_BYTES`, 32 MiB).
     """
 
-    def __init__(self, ser: serial.SerialBase, port: str = "") -> None:
+    def __init__(self, ser: serial.SerialBase, port: str = "",
+                 max_bytes: int = THREAD_QUEUE_BYTES) -> None:
+        if max_bytes < 1:
+            raise ValueError(f"max_bytes must be >= 1, got {max_bytes}")
         self._port = port or getattr(ser, "port", "")
-        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._q = _ByteQueue(int(max_bytes))
         self._thread = ReaderThread(ser, lambda: _QueueProtocol(self._q))
         self._thread.name = f"fpscan-rx {self._port}"
         self._thread.start()
 
     def read(self) -> bytes:
-        try:
-            chunks = [self._q.get(timeout=_WAIT)]
-        except queue.Empty:
-            return b""
-        while True:
-            try:
-                chunks.append(self._q.get_nowait())
-            except queue.Empty:
-                break
-        for c in chunks:
-            if isinstance(c, BaseException):
-                raise TransportError(f"read from {self._port} failed: {c}")
-        return b"".join(chunks)
+        data, discarded, error = self._q.take(_WAIT)
+        if discarded:
+            raise TransportError(f"{self._port} sent more than the {self._q.max_bytes} bytes held "
+                                 f"until they are read (a flood): {discarded} bytes were discarded")
+        if error is not None:
+            raise TransportError(f"read from {self._port} failed: {error}")
+        return data
 
     def close(self) -> None:
         if self._thread.alive:

@@ -61,7 +61,7 @@ DAS_MODULE = '''
 """fpscan_das: delay-and-sum back-projection for a planar sensor, an fpscan method plugin."""
 from pydantic import Field
 
-from fpscan.plugins import DepthOptions, Method, MethodOptions, Reconstruction
+from fpscan.plugins import DepthOptions, Method, MethodOptions, Reconstruction, depth_grid
 
 #: elements of one chunk's (rows, pixels, sensors) arrays
 CHUNK = 1 << 21
@@ -109,8 +109,8 @@ def work(n_t, n_x, n_y=1, *, n_z=None, n_points=None, dtype="float32", **_):
 
 def run(ds, sound_speed, options, progress):
     """Delay-and-sum of the PointDataset ``ds`` on its lateral grid ``ds.grid``: p0
-    ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``, depth rows ``n_z`` (default n_t) at ``dz``
-    (default c dt)."""
+    ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``, depth rows ``n_z`` at ``dz`` (default: fpscan's depth
+    grid, depth_grid: the lateral pitch, as deep as the record reaches)."""
     import numpy as np
 
     dtype = np.dtype(options.dtype)
@@ -130,8 +130,8 @@ def run(ds, sound_speed, options, progress):
     sensors = np.asarray(ds.positions, dtype=np.float64)  # (n, 1) or (n, 2), m
     rho2 = ((pixels[:, None, :] - sensors[None]) ** 2).sum(axis=2).astype(dtype)  # lateral distance²
 
-    n_z = int(options.n_z or n_t)
-    dz = float(options.dz or c * dt)
+    pitch = float(axes[0][1] - axes[0][0]) if len(axes[0]) > 1 else None
+    dz, n_z = depth_grid(n_t, dt, c, pitch, dz=options.dz, n_z=options.n_z, t0=t0)
     z = np.arange(n_z) * dz
     reach = (2 * options.f_number) ** 2
     first = (np.arange(n) * n_t).astype(np.intp)  # where each A-line starts in b

@@ -17,7 +17,9 @@ command line, the server and the web page use:
   simulation, equal to the replay scan's; :mod:`fpscan.service.subsample`);
 - reconstruction (:mod:`fpscan.service.pipeline`, the one dispatch): ``reconstruct(dataset,
   method, **options)`` for every method of ``METHODS`` (``nedner``, ``ner``, ``linear``,
-  ``nearest``, ``cubic``, ``kwave``, ``tv``), ``Reconstruction``, ``Cancelled``;
+  ``nearest``, ``cubic``, ``kwave``, ``tv``), ``Reconstruction``, ``Cancelled``; ``tv_problem(dataset,
+  **options)``: the problem ``tv`` solves (its operator as a ``pylops.LinearOperator``, the data,
+  the warm start, the grid and λ) for pylops' and pyproximal's solvers;
 - scan files (:mod:`fpscan.driver.scanfile`): ``read_scan``, ``ScanFile``, ``ScanData``,
   ``pressure_unit``;
 - results (:mod:`fpscan.service.storage.results`): ``write_result`` (``volume.h5`` + MIP PNGs),
@@ -60,8 +62,8 @@ result folder and exported for napari:
 >>> data = alines.T.reshape(96, 16, 16)          # (n_t, n_y, n_x): time first
 >>> ds = fpscan.GridDataset(data=data, dx=100e-6, dy=100e-6, dt=4e-8, sound_speed=1500.0)
 >>> rec = fpscan.reconstruct(ds, "ner")
->>> rec.p0.shape                                  # (n_z, n_y, n_x)
-(96, 16, 16)
+>>> rec.p0.shape                 # (n_z, n_y, n_x): rows of the pitch down to c·t_last = 5.7 mm
+(58, 16, 16)
 >>> iz, iy, ix = np.unravel_index(np.argmax(rec.p0), rec.p0.shape)
 >>> bool(rec.y[iy] > 0 and rec.x[ix] > 0)        # the ball's +x, +y quadrant
 True
@@ -75,7 +77,7 @@ True
 ['xy', 'xz', 'yz']
 >>> vol = fpscan.read_result(out / "result" / "volume.h5")
 >>> vol.p0.shape, vol.p0_unit
-((96, 16, 16), 'a.u.')
+((58, 16, 16), 'a.u.')
 >>> fpscan.export_file(out / "result" / "volume.h5", out / "p0.ome.zarr", "ome-zarr").name
 'p0.ome.zarr'
 
@@ -99,7 +101,7 @@ _EXPORTS: dict[str, str] = {
     # datasets and the one reconstruction dispatch
     **dict.fromkeys(["load_dataset", "load_wavelengths"], "fpscan.service.storage.loader"),
     **dict.fromkeys(["GridDataset", "PointDataset"], "fpscan.service.recon.dataset"),
-    **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "fpscan.service.pipeline"),
+    **dict.fromkeys(["reconstruct", "METHODS", "Cancelled", "tv_problem"], "fpscan.service.pipeline"),
     "Reconstruction": "fpscan.service.recon.reconstruction",
     "subsample": "fpscan.service.subsample",
     # scan files
@@ -143,7 +145,7 @@ __all__ = [
     "mips", "plan_from_spec", "points_mask", "poisson_mask", "pressure_unit", "preview_png",
     "random_mask", "read_result", "read_scan", "reconstruct", "render_mip", "render_mips",
     "render_so2", "roi_mask", "sharpness_vs_diameter", "side_lobe_level", "so2_map", "subgrid_mask", "subsample",
-    "tenenbaum_sharpness", "thb_map", "unmix", "weight_ratio", "write_result", "write_volume",
+    "tenenbaum_sharpness", "thb_map", "tv_problem", "unmix", "weight_ratio", "write_result", "write_volume",
 ]
 
 if TYPE_CHECKING:
@@ -188,7 +190,7 @@ if TYPE_CHECKING:
         tenenbaum_sharpness,
     )
     from fpscan.service.pictures.render import render_mip, render_mips, render_so2
-    from fpscan.service.pipeline import METHODS, Cancelled, reconstruct
+    from fpscan.service.pipeline import METHODS, Cancelled, reconstruct, tv_problem
     from fpscan.service.plans import (
         MASK_KINDS,
         Acquisition,

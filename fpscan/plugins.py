@@ -10,7 +10,8 @@ A method is a :class:`Method` (a keyword-only declaration) with
 - its options: a subclass of :class:`MethodOptions` (every method's speed of sound
   ``sound_speed``, ``sound_speed_range``, ``force`` and ``dtype``) and of the mix-ins of the
   options it shares with fpscan's methods (:class:`NufftOptions`, :class:`UpsampleOption`,
-  :class:`PositivityOption`, :class:`DepthOptions`, :class:`DeviceOption`), its own as typed
+  :class:`PositivityOption`, :class:`DepthOptions` (with :func:`depth_grid`, the grid its ``n_z`` and ``dz``
+  mean), :class:`DeviceOption`), its own as typed
   pydantic fields with their range, unit (``json_schema_extra={"unit": ...}``) and default: the
   library, ``fpscan recon``'s flags, ``POST /api/reconstructions`` (its options model in the
   request's union) and the web page's fields are generated from them;
@@ -40,7 +41,7 @@ A method that returns the A-lines' envelope as its "image" (a toy; the gallery b
 >>> import fpscan
 >>> from fpscan.plugins import API_VERSION, Method, MethodOptions, Reconstruction, register_method
 >>> API_VERSION
-'1.0'
+'1.1'
 >>> class GainOptions(MethodOptions):
 ...     gain: float = Field(1.0, gt=0, le=100, description="a factor on the image", json_schema_extra={"unit": "1"})
 >>> def run(ds, sound_speed, options, progress):
@@ -65,6 +66,7 @@ from fpscan.service.formats import register as register_format
 from fpscan.service.progress import Fraction, Progress, span
 from fpscan.service.recon.checks import OptionError
 from fpscan.service.recon.dataset import GridDataset, PointDataset
+from fpscan.service.recon.depth import depth_grid
 from fpscan.service.recon.methods import Method, MethodOptions, peak_model, planar_work
 from fpscan.service.recon.methods import register as register_method
 from fpscan.service.recon.methods.options import (
@@ -80,10 +82,10 @@ from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = [
     "API_VERSION", "Method", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions",
-    "DeviceOption", "Flag", "OptionError", "GridDataset", "PointDataset", "Reconstruction", "Progress", "Fraction",
+    "depth_grid", "DeviceOption", "Flag", "OptionError", "GridDataset", "PointDataset", "Reconstruction", "Progress", "Fraction",
     "span", "register_method", "peak_model", "planar_work", "undeclared_peak", "undeclared_work", "FLOAT64_WORK",
     "Format", "Source", "register_format",
 ]
 
 #: the plugin API's version, ``"major.minor"``: a plugin written for major version 1 runs on any 1.x
-API_VERSION = "1.0"
+API_VERSION = "1.1"

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import secrets
 import subprocess
 import sys
 import tempfile
@@ -58,6 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     assert local["params"]["device"] == (args.device if args.device != "auto" else local["params"]["device"])
 
     data_dir = Path(tempfile.mkdtemp(prefix="gpu-check-server-"))
+    os.environ["FPSCAN_TOKEN"] = token = secrets.token_urlsafe(32)  # the server's and the CLI client's
     server = subprocess.Popen([*FPSCAN, "serve", "--port", str(args.port), "--data-dir", str(data_dir),
                                "--workers", "2", "--log-level", "warning"],
                               stdout=open(out / "server.log", "w"), stderr=subprocess.STDOUT)
@@ -66,7 +69,7 @@ def main(argv: list[str] | None = None) -> None:
         deadline = time.monotonic() + 180
         while True:
             try:
-                health = httpx.get(f"{url}/api/health", timeout=5)
+                health = httpx.get(f"{url}/api/health", headers={"Authorization": f"Bearer {token}"}, timeout=5)
                 if health.status_code == 200:
                     break
             except httpx.HTTPError:

@@ -26,6 +26,9 @@ python3 -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.toml', 
   > "$tmp/build-requirements.in"
 for extras in server server,cuda; do
   out="docker/requirements-${extras//,/-}.lock"
+  # uv keeps the versions of the output file it is given where the requirements allow: a lock
+  # changes where pyproject.toml changed (rm the locks for a fresh resolution of everything)
+  if [ -f "$out" ]; then cp "$out" "$tmp/out.lock"; else rm -f "$tmp/out.lock"; fi
   args=()
   for e in ${extras//,/ }; do args+=(--extra "$e"); done
   "$uv" pip compile --quiet --universal --python-version 3.11.1 --generate-hashes --no-header \

@@ -1,8 +1,9 @@
 """The one test for a full disk, for every writer of the data folder (uploads, scan
 files, results, the job database), the one way a file or a folder is put in place
 whole (:func:`file_replaced`: exports; :func:`folder_replaced`: result folders, OME-Zarr
-exports), and the one way stored data is made durable before it is acknowledged
-(:func:`fsync_tree`).
+exports), the names of the temporary files and folders they write meanwhile
+(:func:`temp_sibling`, :func:`is_temp_name`: what the start-up sweep of crash debris removes),
+and the one way stored data is made durable before it is acknowledged (:func:`fsync_tree`).
 
 Acknowledged means on disk: a file a 2xx (or a job's recorded success) names is flushed
 with its folder before the job store's commit that records it, in the order a power cut
@@ -11,25 +12,136 @@ of the folder, and of the folder above for a folder that was renamed into place)
 commit (SQLite, ``synchronous=FULL``), then the answer. Renaming a file into place orders
 nothing by itself: ext4 and XFS may persist the rename before the data (Pillai et al.,
 "All File Systems Are Not Created Equal", OSDI 2014, the ALICE study; POSIX ``fsync``).
+
+A full disk is an ``OSError`` with errno ENOSPC (or EDQUOT, a quota reached), or one whose
+text says so (h5py's errors, SQLite's SQLITE_FULL). NumPy's ``ndarray.tofile`` (what tifffile
+writes arrays with) raises an ``OSError`` without an errno: ``"Not enough free space to write
+N bytes after offset M"`` when its ``fallocate`` of 16 MiB or more fails with ENOSPC (that
+text is a full disk), and ``"N requested and M written"`` for any short ``fwrite`` (the C
+errno is dropped; N and M count array elements; NumPy's ``convert.c``). The short write
+alone does not say why, so the writers here tell it while the partial temporary still holds
+its blocks: when the disk has fewer free bytes than the elements the write was short of
+(each at least a byte), it was full, and the error is raised again as an ENOSPC ``OSError``
+(:func:`file_replaced`, :func:`folder_replaced`). A free-space look after
+the temporary is removed would not do: removing it frees the blocks the write filled.
 """
 from __future__ import annotations
 
+import errno
 import os
+import re
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["is_disk_full", "file_replaced", "folder_replaced", "copy_replaced", "fsync_tree", "fsync_folder",
-           "durable_mkdir"]
+__all__ = ["free_bytes", "is_disk_full", "file_replaced", "folder_replaced", "copy_replaced", "fsync_tree", "fsync_folder",
+           "durable_mkdir", "remove_tree", "temp_sibling", "is_temp_name"]
+
+#: NumPy's short write (``ndarray.tofile``; ``numpy/_core/src/multiarray/convert.c``): no errno
+_SHORT_WRITE = re.compile(r"^(\d+) requested and (\d+) written$")
+#: NumPy's failed ``fallocate`` before a write of 16 MiB or more (ENOSPC; no errno in the exception)
+_NO_ROOM = "Not enough free space to write"
+#: the temporary names fpscan's writers use in the data folder: ``.<name>.<pid>.<12 hex>.tmp``
+#: (:func:`temp_sibling`), ``<name>.tmp-<pid>-<ns>`` (a result folder being written),
+#: ``.<name>.tmp-<pid>`` (an unmixing file an earlier release was writing: its crash debris)
+_TEMP_NAME = re.compile(r"^\..+\.\d+\.[0-9a-f]{12}\.tmp$|^.+\.tmp-\d+(-\d+)?$")
+
+
+def free_bytes(path: str | os.PathLike) -> int | None:
+    """The bytes free to an unprivileged writer on the file system holding ``path``
+    (``statvfs``: ``f_bavail × f_frsize``, as ``shutil.disk_usage(path).free``), or None when
+    they cannot be read (no such path, an I/O error): the one look at free space of every
+    writer and report of the data folder.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file or folder on that file system.
+
+    Returns
+    -------
+    int or None
+        The free bytes, or None.
+    """
+    try:
+        st = os.statvfs(path)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def temp_sibling(out: str | os.PathLike) -> Path:
+    """The temporary sibling a writer fills before renaming it over ``out``:
+    ``.<name>.<pid>.<12 hex>.tmp`` beside it, unique per call (concurrent writers of one
+    target never share it), a name :func:`is_temp_name` knows.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The file or folder to be put in place.
+
+    Returns
+    -------
+    pathlib.Path
+        The temporary path (not made here).
+    """
+    import uuid
+
+    out = Path(out)
+    return out.with_name(f".{out.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+
+
+def is_temp_name(name: str) -> bool:
+    """Whether ``name`` (a last path component) is one of the temporary names fpscan's
+    writers use in the data folder (:func:`temp_sibling`'s, a result folder's
+    ``<name>.tmp-<pid>-<ns>``, and ``.<name>.tmp-<pid>``, an unmixing file's in an earlier
+    release): what a crash leaves behind.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> is_temp_name("..volume.ome.zarr.zip.4242.0123456789ab.tmp"), is_temp_name("volume.h5")
+    (True, False)
+    >>> is_temp_name("job1.tmp-4242-123456789"), is_temp_name("notes.tmp")
+    (True, False)
+    """
+    return bool(_TEMP_NAME.match(name))
+
+
+def _as_disk_full(exc: BaseException, where: Path) -> BaseException:
+    """``exc`` itself, or, for NumPy's short write (no errno) while the disk at ``where`` has
+    fewer free bytes than the elements the write was short of, an ENOSPC ``OSError`` saying
+    so (module docstring); call it while the partial temporary still holds its blocks."""
+    if not isinstance(exc, OSError) or exc.errno is not None:
+        return exc
+    short = _SHORT_WRITE.match(str(exc))
+    if short is None:
+        return exc
+    free = free_bytes(where)
+    missing = int(short.group(1)) - int(short.group(2))
+    if free is None or free >= missing:
+        return exc
+    full = OSError(errno.ENOSPC, f"No space left on device ({type(exc).__name__}: {exc})")
+    full.__cause__ = exc
+    return full
 
 
 @contextmanager
 def file_replaced(out: str | os.PathLike) -> Iterator[Path]:
-    """Write a file as a temporary sibling of ``out`` (unique per call: concurrent writers of
-    one target never share it), then rename it over ``out`` (``os.replace``: a reader sees the
-    old file or the whole new one); on any error the temporary file is removed and the error
-    raised. ``out``'s folder is made if missing. Yields the temporary path.
+    """Write a file as a temporary sibling of ``out`` (:func:`temp_sibling`: unique per call,
+    concurrent writers of one target never share it), then rename it over ``out``
+    (``os.replace``: a reader sees the old file or the whole new one); on any error the
+    temporary file is removed and the error raised (NumPy's short write on a full disk as an
+    ENOSPC ``OSError``: module docstring). ``out``'s folder is made if missing. Yields the
+    temporary path.
 
     Parameters
     ----------
@@ -46,16 +158,17 @@ def file_replaced(out: str | os.PathLike) -> Iterator[Path]:
     OSError
         The folder cannot be made, or the rename fails (and what the body raises).
     """
-    import uuid
-
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    tmp = temp_sibling(out)
     try:
         yield tmp
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as exc:
+        full = _as_disk_full(exc, out.parent)
         tmp.unlink(missing_ok=True)
+        if full is not exc:
+            raise full from exc
         raise
 
 
@@ -91,7 +204,9 @@ def copy_replaced(src: str | os.PathLike, out: str | os.PathLike) -> Path:
 def folder_replaced(out: str | os.PathLike, tmp: str | os.PathLike) -> Iterator[Path]:
     """Write a folder as ``tmp`` (a sibling of ``out``, made by the body), then put it in
     place of ``out`` (an existing ``out`` folder removed first, ``os.replace``); on any
-    error in the body or the move ``tmp`` is removed and the error raised. Yields ``tmp``.
+    error in the body or the move ``tmp`` is removed (every file in it, however deep) and the
+    error raised (NumPy's short write on a full disk as an ENOSPC ``OSError``: module
+    docstring). Yields ``tmp``.
 
     Parameters
     ----------
@@ -117,8 +232,11 @@ def folder_replaced(out: str | os.PathLike, tmp: str | os.PathLike) -> Iterator[
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException as exc:
+        full = _as_disk_full(exc, tmp.parent)
+        remove_tree(tmp)
+        if full is not exc:
+            raise full from exc
         raise
 
 
@@ -214,9 +332,27 @@ def _fsync_file(path: Path) -> None:
         os.close(fd)
 
 
+def remove_tree(folder: str | os.PathLike) -> None:
+    """Remove ``folder`` and everything in it, however deep, if it is there; a file that
+    another thread of the writer adds while the tree is removed (a write in flight when the
+    writer failed) is removed by a second pass. Errors are not raised (what stays is crash
+    debris for the start-up sweep).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder (a temporary one a writer filled).
+    """
+    for _ in range(3):
+        shutil.rmtree(folder, ignore_errors=True)
+        if not os.path.lexists(folder):
+            return
+
+
 def is_disk_full(exc: BaseException | None) -> bool:
-    """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC (h5py's
-    errors too, by their text) or SQLite's "database or disk is full" (SQLITE_FULL).
+    """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC or EDQUOT
+    (h5py's errors too, by their text; NumPy's failed ``fallocate``, by its text: module
+    docstring) or SQLite's "database or disk is full" (SQLITE_FULL).
 
     Parameters
     ----------
@@ -228,13 +364,13 @@ def is_disk_full(exc: BaseException | None) -> bool:
     bool
         True for a full disk anywhere in that chain; False for None or any other error.
     """
-    import errno
     import sqlite3
 
     for _ in range(8):
         if exc is None:
             return False
-        if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left on device" in str(exc)):
+        if isinstance(exc, OSError) and (exc.errno in (errno.ENOSPC, errno.EDQUOT) or any(
+                text in str(exc) for text in ("No space left on device", "Disk quota exceeded", _NO_ROOM))):
             return True
         if isinstance(exc, sqlite3.OperationalError) and "disk is full" in str(exc):
             return True

@@ -29,7 +29,11 @@ validated once, at the door (:meth:`Method.check`), and carried typed to the met
   :data:`DEFAULT_DTYPE` = ``"float32"`` for every method and every caller;
 - ``eps``: NUFFT tolerance (``ner``, ``nedner``; default 1e-6);
 - ``upsample``: lateral upsampling factor 1..8; ``positivity``: clip p0 < 0 to 0;
-- ``n_z``, ``dz``: output depth count and spacing in m (default ``n_t`` and ``c·dt``);
+- ``n_z``, ``dz``: output depth count and spacing in m; by default every method's one depth grid
+  (:func:`fpscan.service.recon.depth.depth_grid`): ``dz`` the lateral pitch (``c·dt`` where that is
+  finer), ``n_z`` as deep as the record reaches (``c·t_last``), one given alone keeping the other's
+  default (``tv``: its band's spacing, down to the last echo above the noise; ``kwave`` has no
+  depth options: k-Wave's own grid, ``n_t`` rows of ``c·dt``);
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
   ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``;
 - ``lam``, ``max_iter``, ``tol``, ``time_limit``, ``debias``, ``whole_record`` (``tv``).
@@ -58,6 +62,7 @@ Examples
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from contextvars import ContextVar
@@ -66,19 +71,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fpscan.service.progress import Progress, span
+from fpscan.service.progress import Progress, forward, span
 from fpscan.service.recon import methods as _methods
 from fpscan.service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
 from fpscan.service.recon.methods import Method, MethodOptions
 
 __all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled", "run_file",
            "Progress", "ShouldStop", "default_method", "option_rules", "check_option_values", "method_options",
-           "reconstruct"]
+           "reconstruct", "tv_problem"]
 
 if TYPE_CHECKING:
     from fpscan.service.plans import Mask, Plan
     from fpscan.service.recon.dataset import GridDataset, PointDataset
     from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.tv.formulation import TvProblem
 
     Dataset = GridDataset | PointDataset
 
@@ -318,7 +324,9 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
         The method's options (module docstring): its own model's instance (what a job's record
         holds), or a dict of them; or give them as keywords.
     progress : callable, optional
-        ``progress(fraction, stage)``, fractions non-decreasing in [0, 1].
+        ``progress(fraction, stage)``, fractions non-decreasing in [0, 1], and a stage left
+        behind never reported again at the same fraction (``fpscan.service.progress.Forward``:
+        the method's last stage, e.g. tv's "converged after 53 iterations", stays the stage).
     should_stop : callable, optional
         ``should_stop() -> bool``, polled between steps.
     quiet : bool, optional
@@ -349,7 +357,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
 
     Examples
     --------
-    A laterally uniform layer at depth row 10 on an 8-sensor line (dz = c dt = 0.1 mm):
+    A laterally uniform layer at depth row 10 on an 8-sensor line (dz = the pitch = c dt = 0.1 mm):
 
     >>> import numpy as np
     >>> from fpscan.service.pipeline import reconstruct
@@ -391,6 +399,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
                                           should_stop=should_stop, quiet=True, **given), method)
     spec = _methods.get(method)
     opts = method_options(method, options, **given)
+    progress = forward(progress)  # the fraction and the stage only move forward, whatever the method says
     if opts.sound_speed == "auto":
         from fpscan.service.autofocus import focus_then_reconstruct
 
@@ -469,6 +478,83 @@ def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: in
     return None, datasets
 
 
+def tv_problem(dataset: Dataset, options: dict | MethodOptions | None = None, /, **given: Any) -> TvProblem:
+    """The problem ``tv`` solves for ``dataset``, for any solver: the operator A as a
+    ``pylops.LinearOperator``, the data g it fits, the warm start, the grid and the automatic λ
+    (``fpscan.service.recon.tv.formulation.TvProblem``), made by tv's own set-up on the CPU:
+
+        p0 = argmin_{p >= 0} J(p) = ½ ‖A p − g‖² + λ TV(p)
+
+    (Arridge et al., Phys. Med. Biol. 61 (2016) 8908), so that pylops' and pyproximal's solvers
+    run on fpscan's physics and compare with tv by ``objective`` (examples/plot_tv_pyproximal.py).
+
+    Parameters
+    ----------
+    dataset : GridDataset or PointDataset
+        As :func:`reconstruct`'s (grid data become one A-line per grid point).
+    options : dict or MethodOptions, optional
+        tv's options that set its problem (``sound_speed`` in m/s, ``force``, ``eps``, ``dtype``,
+        ``n_z``, ``dz`` in m, ``positivity``, ``lam``, ``whole_record``), checked by tv's model
+        as :func:`reconstruct` checks them; or give them as keywords.
+    **given
+        More options.
+
+    Returns
+    -------
+    TvProblem
+        ``operator`` (``dims`` the image's ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, ``dimsd`` the
+        A-lines' ``(n_points, n_t)``; vectors flattened in C order), ``data`` (g, float64, Pa),
+        ``warm_start`` (an image, the working dtype), ``grid``, ``lam`` (Pa), ``positivity``, the
+        axes ``z``, ``x``, ``y`` (m, on the data's lateral coordinates), ``gradient`` (TV's ∇),
+        ``preconditioner`` (tv's P), ``params``; ``objective(p)`` = J(p) in Pa².
+
+    Raises
+    ------
+    ValueError
+        What :func:`reconstruct` refuses for ``tv``; an option of tv's solver (``max_iter``,
+        ``tol``, ``time_limit``, ``debias``, ``device``), or ``sound_speed="auto"`` (the search
+        reconstructs: take the speed a ``tv`` reconstruction found, its ``params["sound_speed"]``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import fpscan
+    >>> g = np.zeros((64, 8)); g[10] = 0.5  # (n_t, n_x): a layer at depth row 10
+    >>> ds = fpscan.GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
+    >>> pb = fpscan.tv_problem(ds, n_z=16)
+    >>> pb.operator.dims, pb.data.shape, pb.warm_start.dtype, pb.positivity
+    ((16, 8), (8, 64), dtype('float32'), True)
+    >>> fpscan.tv_problem(ds, max_iter=10)
+    Traceback (most recent call last):
+    ...
+    fpscan.service.recon.checks.OptionError: tv_problem takes the options of tv's problem; max_iter sets its solver
+    """
+    from fpscan.service.recon.checks import OptionError
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.methods import tv
+
+    opts = method_options("tv", options, **given)
+    asked = opts.model_fields_set if isinstance(options, MethodOptions) else {
+        k for k, v in {**(options or {}), **given}.items() if v is not None}
+    solver = [k for k in tv.SOLVER_OPTIONS if k in asked]
+    if solver:
+        raise OptionError(f"tv_problem takes the options of tv's problem; {', '.join(solver)} "
+                          f"set{'s' if len(solver) == 1 else ''} its solver")
+    if opts.sound_speed == "auto":
+        raise OptionError("tv_problem needs the speed of sound in m/s, not 'auto' (the search reconstructs: "
+                          "take the params['sound_speed'] of fpscan.reconstruct(dataset, 'tv', sound_speed='auto'))")
+    c = float(dataset.sound_speed if opts.sound_speed is None else opts.sound_speed)
+    points = dataset.to_points() if isinstance(dataset, GridDataset) else dataset
+    assert isinstance(opts, tv.Options)  # `method_options` gives tv's own model
+    pb = tv.problem(points, c, opts)
+    shift = dataset.lateral_shift
+    if shift and any(shift):  # the image on the data's own lateral coordinates, as `reconstruct` puts it
+        y = None if pb.y is None or len(shift) < 2 else np.asarray(pb.y, dtype=np.float64) + float(shift[1])
+        pb = dataclasses.replace(pb, x=np.asarray(pb.x, dtype=np.float64) + float(shift[0]),
+                                 y=pb.y if y is None else y)
+    return pb
+
+
 def _shift_lateral(result: Reconstruction, shift: tuple[float, ...] | None) -> None:
     """Put the image on the data's own lateral coordinates: add ``shift`` ((x,) or (x, y), m;
     ``dataset.lateral_shift``: the file's sensor coordinates or k-Wave's grid origin minus the
@@ -530,7 +616,8 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         Recorded in the result (the dataset id, the file's name).
     progress : callable, optional
         ``progress(fraction, stage)``: ``"loading"`` at 0, the reconstruction's own stages
-        on [0.2, 0.9] (unmixing: [0.2, 0.95]), ``"writing"`` at 0.9, ``"done"`` at 1.
+        on [0.2, 0.9] (unmixing: [0.2, 0.95]), ``"writing"`` at 0.9, ``"done"`` at 1; the
+        fraction and the stage only move forward (``fpscan.service.progress.Forward``).
     should_stop : callable, optional
         As :func:`reconstruct`.
     on_loaded : callable, optional
@@ -586,6 +673,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     from fpscan.service.recon.methods import outcome
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
+    progress = forward(progress)  # the job's fraction and stage only move forward (fpscan.service.progress.Forward)
     load = {k: v for k, v in (load or {}).items() if v is not None}
     opts = None if method is None else method_options(method, options, **given)  # refused before any reading
     t0 = time.perf_counter()

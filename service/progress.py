@@ -46,8 +46,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, overload
 
-__all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "DEFAULT_STAGE", "IterationStage",
-           "parse_iteration", "iteration_fields", "describe_iteration", "SETUP_STAGES", "stage_kind", "Eta",
+__all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "Forward", "forward", "DEFAULT_STAGE", "IterationStage",
+           "parse_iteration", "iteration_fields", "stage_of", "describe_iteration", "SETUP_STAGES", "stage_kind", "LOW_S", "Countdown", "Eta",
            "Shown", "outcome"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
@@ -216,6 +216,93 @@ def rising(progress: Fraction | None) -> Rising | None:
     return None if progress is None else Rising(progress)
 
 
+class Forward:
+    """A :data:`Progress` that only moves forward (made by :func:`forward`): the one guard every
+    reconstruction's progress passes through (``fpscan.service.pipeline.reconstruct`` and
+    ``run_file``), so that what a job, the CLI, the web page or a notebook shows never steps back.
+
+    ``forward_(fraction, stage)`` calls ``progress`` with the largest fraction reported so far
+    (a lower one is raised to it) and with ``stage``, unless ``stage`` is of a kind
+    (:func:`stage_kind`) already left behind and the fraction has not risen: then the current
+    stage again (the pipeline's closing ``"reconstructing"`` after tv's ``"converged after 53
+    iterations"`` at the same fraction; the next wavelength's ``"warm start"`` at a higher
+    fraction is new work, and passes). Every report is passed on, so a cancel raised from
+    ``progress`` is still heard; whatever it raises passes through.
+
+    Parameters
+    ----------
+    progress : Progress
+        The callback ``progress(fraction, stage)``.
+
+    Attributes
+    ----------
+    progress : Progress
+        As given.
+    fraction : float
+        The largest fraction passed on (``-inf`` before the first).
+    stage : str or None
+        The stage last passed on (None before the first).
+    """
+
+    __slots__ = ("progress", "fraction", "stage", "_left")
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.fraction = -math.inf
+        self.stage: str | None = None
+        self._left: set[str] = set()  # the stage kinds left behind
+
+    def __call__(self, fraction: float, stage: str) -> None:
+        f = float(fraction)
+        if self.stage is not None:
+            now, kind = stage_kind(self.stage), stage_kind(stage)
+            if kind != now:
+                if kind in self._left and not f > self.fraction:
+                    stage = self.stage  # back to a stage left behind, with no progress: the current one
+                else:
+                    self._left.add(now)
+        self.fraction, self.stage = max(f, self.fraction), stage
+        self.progress(self.fraction, stage)
+
+    def __repr__(self) -> str:
+        return f"forward({self.progress!r})"
+
+
+@overload
+def forward(progress: Progress) -> Forward: ...
+
+
+@overload
+def forward(progress: None) -> None: ...
+
+
+def forward(progress: Progress | None) -> Forward | None:
+    """``progress`` guarded so that its fraction and its stage only move forward (:class:`Forward`).
+
+    Parameters
+    ----------
+    progress : the :data:`Progress` to guard, or None (no one listens).
+
+    Returns
+    -------
+    A :class:`Forward` (a :data:`Progress`), ``progress`` itself when it is one already, or None
+    when ``progress`` is None.
+
+    Examples
+    --------
+    >>> seen = []
+    >>> report = forward(lambda f, stage: seen.append((f, stage)))
+    >>> report(0.2, "reconstructing"); report(0.5, "iteration 9/100"); report(0.9, "converged after 9 iterations")
+    >>> report(0.9, "reconstructing")  # back to a stage left behind, at the same fraction
+    >>> report(0.8, "writing")  # a new stage; its fraction no lower than the last
+    >>> seen[3:]
+    [(0.9, 'converged after 9 iterations'), (0.9, 'writing')]
+    """
+    if progress is None or isinstance(progress, Forward):
+        return progress
+    return Forward(progress)
+
+
 # ------------------------------------------------------------------ iterative methods
 class IterationStage(str):
     """The stage of an iterative method at iteration ``k`` of at most ``n``: the text
@@ -244,6 +331,11 @@ class IterationStage(str):
     waits_for : str, optional
         What the rule waits for while not armed, in words its method declares
         (``fpscan.service.recon.methods.Method.stop_waits_for``; tv: ``"λ has settled"``); default "".
+    armed_at : int, optional
+        The first iteration at which the rule can stop the work, known in advance (tv: its λ
+        continuation's K iterations + the rule's window of 3); None (default): unknown, or the
+        rule never stops it (a tolerance of 0). The iterations before it are certain:
+        :class:`Eta` counts at least those.
     text : str, optional
         The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
         its suffix.
@@ -259,6 +351,8 @@ class IterationStage(str):
     armed : bool
         As given.
     waits_for : str
+        As given.
+    armed_at : int or None
         As given.
 
     Examples
@@ -277,30 +371,37 @@ class IterationStage(str):
     rule_name: str
     armed: bool
     waits_for: str
+    armed_at: int | None
 
     def __new__(cls, k: int, n: int, rule: float | None = None, tol: float | None = None, *,
                 rule_name: str = "image change", text: str | None = None, armed: bool = True,
-                waits_for: str = "") -> IterationStage:
+                waits_for: str = "", armed_at: int | None = None) -> IterationStage:
         self = super().__new__(cls, text if text is not None else f"iteration {int(k)}/{int(n)}")
         self.k, self.n = int(k), int(n)
         self.rule = float(rule) if rule is not None and math.isfinite(float(rule)) else None
         self.tol = float(tol) if tol is not None and math.isfinite(float(tol)) else None
         self.rule_name, self.armed, self.waits_for = rule_name, bool(armed), str(waits_for)
+        self.armed_at = None if armed_at is None else int(armed_at)
         return self
 
+    def _with(self, **changes: Any) -> IterationStage:
+        """The same stage with ``changes`` to its keyword fields."""
+        keywords = {"rule_name": self.rule_name, "text": str(self), "armed": self.armed, "waits_for": self.waits_for,
+                    "armed_at": self.armed_at, **changes}
+        return IterationStage(self.k, self.n, self.rule, self.tol, **keywords)
+
     def __add__(self, other: str) -> IterationStage:
-        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self) + other,
-                              armed=self.armed, waits_for=self.waits_for)
+        return self._with(text=str(self) + other)
 
     def __getnewargs_ex__(self) -> tuple[tuple, dict]:
         return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self),
-                                                       "armed": self.armed, "waits_for": self.waits_for}
+                                                       "armed": self.armed, "waits_for": self.waits_for,
+                                                       "armed_at": self.armed_at}
 
     def waiting_for(self, words: str) -> IterationStage:
         """The same stage with ``waits_for`` = ``words`` (what its method declares its rule waits
         for: ``fpscan.service.recon.methods.Method.stop_waits_for``)."""
-        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self),
-                              armed=self.armed, waits_for=words)
+        return self._with(waits_for=words)
 
 
 _ITERATION = re.compile(r"iteration (\d+)/(\d+)")
@@ -331,9 +432,10 @@ def parse_iteration(stage: Any) -> IterationStage | None:
 def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
-    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet) and,
-    while it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's
-    words: tv's ``"λ has settled"``); ``{}`` for any other stage.
+    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet),
+    ``stop_armed_at`` (the first iteration at which it can, where known in advance) and, while
+    it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's words:
+    tv's ``"λ has settled"``); ``{}`` for any other stage. :func:`stage_of` reads them back.
 
     Parameters
     ----------
@@ -350,9 +452,45 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
         return {}
     fields: dict[str, Any] = {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name,
                               "stop_value": it.rule, "stop_tol": it.tol, "stop_armed": it.armed}
+    if it.armed_at is not None:
+        fields["stop_armed_at"] = it.armed_at
     if not it.armed and it.waits_for:
         fields["stop_waits_for"] = it.waits_for
     return fields
+
+
+def stage_of(progress: Mapping[str, Any]) -> Any:
+    """A job progress's stage as a report gave it: an :class:`IterationStage` with the rule's
+    numbers where the progress holds :func:`iteration_fields`, else the stage itself, so that an
+    :class:`Eta` fed from a job's progress (the CLI's) estimates as the worker's does.
+
+    Parameters
+    ----------
+    progress : Mapping of str to object
+        A job's progress (``stage`` and, while an iterative method iterates, its fields).
+
+    Returns
+    -------
+    IterationStage or object
+        The stage with its numbers, or ``progress["stage"]`` (None where it has none).
+
+    Examples
+    --------
+    >>> s = stage_of({"stage": "iteration 7/100 (λ continuation 7/50)", **iteration_fields(
+    ...     IterationStage(7, 100, rule=0.02, tol=0.005, armed=False, armed_at=53))})
+    >>> s, s.k, s.rule, s.tol, s.armed, s.armed_at
+    ('iteration 7/100 (λ continuation 7/50)', 7, 0.02, 0.005, False, 53)
+    >>> stage_of({"stage": "writing"})
+    'writing'
+    """
+    stage = progress.get("stage")
+    k, n = progress.get("iteration"), progress.get("iterations_max")
+    if k is None or n is None:
+        return stage
+    return IterationStage(int(k), int(n), progress.get("stop_value"), progress.get("stop_tol"),
+                          rule_name=progress.get("stop_rule") or "image change", text=str(stage),
+                          armed=bool(progress.get("stop_armed", True)), waits_for=progress.get("stop_waits_for") or "",
+                          armed_at=progress.get("stop_armed_at"))
 
 
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
@@ -364,14 +502,21 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     ----------
     fields : Mapping of str to object
         ``iteration``, ``iterations_max`` and optionally ``stop_rule``, ``stop_value``,
-        ``stop_tol``, ``stop_armed`` and ``stop_waits_for`` (``stop_armed`` False: "once"
-        and what the rule waits for, the method's words: tv's "once λ has settled").
+        ``stop_tol``, ``stop_armed``, ``stop_armed_at`` and ``stop_waits_for`` (``stop_armed``
+        False: "once" and what the rule waits for, the method's words: tv's "once λ has
+        settled", and "from iteration N" where N is known).
 
     Returns
     -------
     str or None
         The line (the rule's value only when known; ``"(tol 0: no early stop)"`` for a zero
         tolerance), or None when ``iteration`` or ``iterations_max`` is missing.
+
+    Examples
+    --------
+    >>> describe_iteration({"iteration": 7, "iterations_max": 100, "stop_rule": "image change", "stop_value": 0.021,
+    ...                     "stop_tol": 0.005, "stop_armed": False, "stop_armed_at": 53, "stop_waits_for": "λ has settled"})
+    'iteration 7/100, image change 0.021 (stops below 0.005 once λ has settled, from iteration 53)'
     """
     k, n = fields.get("iteration"), fields.get("iterations_max")
     if k is None or n is None:
@@ -381,7 +526,11 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     if value is not None:
         text += f", {fields.get('stop_rule') or 'stopping rule'} {value:.2g}"
         if tol is not None:
-            later = "" if fields.get("stop_armed", True) else f" once {fields.get('stop_waits_for') or 'armed'}"
+            later = ""
+            if not fields.get("stop_armed", True):
+                later = f" once {fields.get('stop_waits_for') or 'armed'}"
+                if fields.get("stop_armed_at") is not None:
+                    later += f", from iteration {fields['stop_armed_at']}"
             text += f" (stops below {tol:.2g}{later})" if tol > 0 else " (tol 0: no early stop)"
     return text
 
@@ -416,6 +565,70 @@ def stage_kind(stage: Any) -> str:
     return " ".join(words)
 
 
+#: an estimate of the time left under this many seconds is shown for at most as long at a
+#: stretch (:class:`Countdown`): after that the work has outrun it, and no figure is shown until
+#: a new estimate of at least this much
+LOW_S = 5.0
+
+
+class Countdown:
+    """The time left as shown between estimates: the last estimate counted down by the time
+    since, in s; under :data:`LOW_S` for at most :data:`LOW_S` s at a stretch, then None (the
+    work has outrun its estimate: no figure is honest until a new estimate of at least
+    :data:`LOW_S`). ``set(estimate, now)`` takes a new estimate (None: none) and returns what
+    to show now; ``read(now)`` what to show later. Both :class:`Eta` and the CLI's progress
+    lines between reports (``fpscan.clients.cli.common.ProgressBar``) show through one.
+
+    Attributes
+    ----------
+    estimate : float or None
+        The last estimate, s.
+    at : float
+        When it was made (the caller's clock, s).
+
+    Examples
+    --------
+    >>> c = Countdown()
+    >>> c.set(8.0, now=0.0), c.read(now=3.0), c.read(now=7.5)  # under 5 s from t = 3
+    (8.0, 5.0, 0.5)
+    >>> c.read(now=8.0), c.set(2.0, now=8.5)  # from t = 8 it has shown under 5 s for 5 s
+    (None, None)
+    >>> c.set(6.0, now=9.0), c.read(now=10.5)  # a new estimate above 5 s shows again
+    (6.0, 4.5)
+    """
+
+    def __init__(self) -> None:
+        self.estimate: float | None = None
+        self.at = 0.0
+        self._low_since: float | None = None  # when the figure shown went under LOW_S
+
+    def _crossing(self) -> float:
+        """When the current estimate, counted down, went (or goes) under :data:`LOW_S`."""
+        assert self.estimate is not None
+        return self.at + max(self.estimate - LOW_S, 0.0)
+
+    def set(self, estimate: float | None, now: float) -> float | None:
+        if estimate is None:
+            self.estimate, self._low_since = None, None
+            return None
+        if estimate >= LOW_S:
+            self._low_since = None
+        elif self._low_since is None:  # under LOW_S since the old countdown went under it, or from now
+            old = self.estimate is not None and self.estimate - (now - self.at) < LOW_S
+            self._low_since = self._crossing() if old else now
+        self.estimate, self.at = float(estimate), now
+        return self.read(now)
+
+    def read(self, now: float) -> float | None:
+        if self.estimate is None:
+            return None
+        left = max(self.estimate - (now - self.at), 0.0)
+        if left >= LOW_S:
+            return left
+        since = self._low_since if self._low_since is not None else self._crossing()
+        return None if now - since >= LOW_S else left
+
+
 class Eta:
     """The time left of a piece of work from its progress reports, in s (or None):
     ``eta(fraction, stage)`` at each report.
@@ -428,8 +641,11 @@ class Eta:
       line fitted to log(value) over the last iterations (a geometric fall, as a
       convergent solver's image change shows), extended to the tolerance; where the value
       does not fall (or no value or tolerance is known) they are the n − k left to the
-      iteration limit. An estimate: :attr:`bound_s` is the time to the limit, which it
-      never exceeds.
+      iteration limit. They are never fewer than the iterations before the rule can stop the
+      work (``armed_at`` − k: tv's λ continuation and the rule's window, known in advance; until
+      the fall is measured, they are those: a lower bound, :attr:`basis` ``"earliest stop"``)
+      and never more than n − k: :attr:`bound_iterations`, the bound that always holds
+      (:attr:`limit_s` is their time at the measured rate, itself an estimate).
     - In :data:`SETUP_STAGES`: None (the iterations are not measured yet).
     - In any other stage: the fraction's rate since the stage began,
       ``(elapsed in stage) × (1 − f) / (f − f at the stage's start)``.
@@ -437,8 +653,11 @@ class Eta:
     Within a stage, an estimate never moves by more than 2× from the one before counted
     down by the time since (at least 1 s): ``e_new`` in ``[e/2, 2e]`` for
     ``e = max(e_prev − elapsed, 1)``, so a slow or a fast iteration shifts the estimate
-    gradually (tqdm's and rich's smoothed rates do the same in spirit). A new stage kind
-    (:func:`stage_kind`) starts afresh. ``clock``: the time source (s; a test's own).
+    gradually (tqdm's and rich's smoothed rates do the same in spirit); except that it never
+    falls below the certain iterations' time (``armed_at`` − k of them) and is taken afresh
+    once the work has outrun the one before. A new stage kind (:func:`stage_kind`) starts
+    afresh. What is shown is a :class:`Countdown`: under :data:`LOW_S` s for at most
+    :data:`LOW_S` s at a stretch. ``clock``: the time source (s; a test's own).
 
     Parameters
     ----------
@@ -458,11 +677,15 @@ class Eta:
         As given.
     clock : callable
         As given.
-    bound_s : float or None
-        In an iteration stage, the time to the iteration limit (n − k iterations), s: the
-        bound of the estimate; None otherwise.
+    bound_iterations : int or None
+        In an iteration stage with an estimate, the iterations left at most (n − k, the
+        iteration limit's); None otherwise.
+    limit_s : float or None
+        Their time at the measured time per iteration, s (an estimate; None otherwise).
     basis : str or None
-        What the last iteration estimate counts to: ``"stopping rule"`` or ``"iteration limit"``.
+        What the last iteration estimate counts to: ``"stopping rule"`` (the rule's fall
+        extended to the tolerance, at least to ``armed_at``), ``"earliest stop"`` (``armed_at``,
+        before the rule's fall is measured: a lower bound) or ``"iteration limit"``.
 
     Raises
     ------
@@ -488,8 +711,18 @@ class Eta:
     >>> for k in range(1, 7):
     ...     t[0] = 2.0 * k
     ...     left = eta(k / 100, IterationStage(k, 100, rule=10 ** (-k / 4), tol=1e-3))
-    >>> round(left), eta.basis, round(eta.bound_s)  # 6 iterations of 2 s; at most 94 of them
-    (12, 'stopping rule', 188)
+    >>> round(left), eta.basis, eta.bound_iterations, round(eta.limit_s)  # 6 iterations of 2 s; at most 94
+    (12, 'stopping rule', 94, 188)
+
+    The same while the rule cannot stop the work before iteration 40 (tv's λ continuation):
+    34 iterations are certain.
+
+    >>> t, eta = [0.0], Eta(clock=lambda: t[0])
+    >>> for k in range(1, 7):
+    ...     t[0] = 2.0 * k
+    ...     left = eta(k / 100, IterationStage(k, 100, rule=10 ** (-k / 4), tol=1e-3, armed=False, armed_at=40))
+    >>> round(left)
+    68
     """
 
     def __init__(self, *, smoothing: float = 0.3, settle: int = 2, clock: Callable[[], float] = time.monotonic):
@@ -502,9 +735,11 @@ class Eta:
         self._last_k_at = 0.0
         self._per_iteration: float | None = None
         self._intervals = 0
-        self._shown: tuple[float, float] | None = None  # (estimate, when)
-        self._rule: list[tuple[int, float]] = []  # (k, log of the rule's value): the recent fall
-        self.bound_s: float | None = None
+        self._shown: tuple[float, float] | None = None  # (estimate, when): the smoothing's
+        self._countdown = Countdown()  # what is shown
+        self._rule: list[tuple[int, float, bool]] = []  # (k, log of the rule's value, armed): its fall
+        self.bound_iterations: int | None = None
+        self.limit_s: float | None = None
         self.basis: str | None = None
 
     def __call__(self, fraction: float, stage: Any) -> float | None:
@@ -514,26 +749,36 @@ class Eta:
             self._kind, self._t0, self._f0 = kind, now, float(fraction)
             self._last_k, self._per_iteration, self._intervals, self._shown = None, None, 0, None
             self._rule = []
+            self._countdown.set(None, now)
         it = parse_iteration(stage)
-        self.bound_s = None
+        self.bound_iterations = self.limit_s = None
+        floor = 0.0  # the certain part of the estimate (s)
         if it is not None:
-            raw = self._iterations(it, now)
+            raw, floor = self._iterations(it, now)
         elif kind in SETUP_STAGES:
             raw = None
         else:
             f = float(fraction)
             raw = None if f <= self._f0 or f >= 1.0 else (now - self._t0) * (1.0 - f) / (f - self._f0)
         if raw is None:
-            return None if self._shown is None else max(self._shown[0] - (now - self._shown[1]), 0.0)
+            return self._countdown.read(now)
         if self._shown is not None:
-            base = max(self._shown[0] - (now - self._shown[1]), 1.0)
-            raw = min(max(raw, base / 2), 2 * base)
-        if self.bound_s is not None:  # the smoothing's floor never lifts it past the iteration limit
-            raw = min(raw, self.bound_s)
+            left = self._shown[0] - (now - self._shown[1])
+            if left > 0:  # not outrun: moved gradually from it
+                base = max(left, 1.0)
+                raw = min(max(raw, base / 2), 2 * base)
+        raw = max(raw, floor)  # the certain iterations' time, whatever the smoothing says
+        if self.limit_s is not None:  # the smoothing's floor never lifts it past the iteration limit
+            raw = min(raw, self.limit_s)
         self._shown = (raw, now)
-        return raw
+        return self._countdown.set(raw, now)
 
-    def _iterations(self, it: IterationStage, now: float) -> float | None:
+    def read(self) -> float | None:
+        """What to show now, between reports: the last estimate counted down (:class:`Countdown`)."""
+        return self._countdown.read(self.clock())
+
+    def _iterations(self, it: IterationStage, now: float) -> tuple[float | None, float]:
+        """The estimate in an iteration stage and its certain part, s (None, 0 while unmeasured)."""
         if self._last_k is not None and it.k > self._last_k:
             step = (now - self._last_k_at) / (it.k - self._last_k)
             a = self.smoothing
@@ -542,24 +787,40 @@ class Eta:
         if self._last_k is None or it.k > self._last_k:
             self._last_k, self._last_k_at = it.k, now
         if it.rule is not None and it.rule > 0 and (not self._rule or it.k > self._rule[-1][0]):
-            self._rule = [*self._rule[-(_FIT - 1):], (it.k, math.log(it.rule))]
+            if self._rule and math.log(it.rule) == self._rule[-1][1]:  # the same value held (a window's largest): kept at its first k
+                self._rule[-1] = (self._rule[-1][0], self._rule[-1][1], it.armed)
+            else:
+                self._rule = [*self._rule[-(_FIT - 1):], (it.k, math.log(it.rule), it.armed)]
         if self._per_iteration is None or self._intervals < self.settle:
-            return None
+            return None, 0.0
         cap = max(it.n - it.k, 0)
-        self.bound_s = cap * self._per_iteration
-        left = self._to_rule(it)
-        self.basis = "iteration limit" if left is None or left >= cap else "stopping rule"
-        return (cap if left is None else min(left, cap)) * self._per_iteration
+        self.bound_iterations, self.limit_s = cap, cap * self._per_iteration
+        certain = 0
+        if it.armed_at is not None and it.tol is not None and it.tol > 0:
+            certain = min(max(it.armed_at - it.k, 0), cap)
+        fitted = self._to_rule(it)
+        left: float
+        if fitted is None and certain:  # no fall measured yet: at least to the first stop the rule can make
+            left, self.basis = certain, "earliest stop"
+        else:
+            left = cap if fitted is None else min(max(fitted, certain), cap)
+            self.basis = "iteration limit" if left >= cap else "stopping rule"
+        return left * self._per_iteration, certain * self._per_iteration
 
     def _to_rule(self, it: IterationStage) -> float | None:
         """Iterations until the rule's value, falling as fitted, is below the tolerance; None
-        where that cannot be told (no tolerance, too few values, a value that does not fall)."""
-        if it.tol is None or it.tol <= 0 or len(self._rule) < 3:
+        where that cannot be told (no tolerance, too few values, a value that does not fall).
+        The fit: a straight line to log(value) over the last `_FIT` values (a geometric fall, as
+        a convergent solver's image change shows; a value held over several iterations, the
+        largest of a window, counts once, at its first)."""
+        if it.tol is None or it.tol <= 0 or len(self._rule) < _FIT_MIN:
             return None
-        ks = [float(k) for k, _ in self._rule]
-        vs = [v for _, v in self._rule]
+        ks = [float(k) for k, _, _ in self._rule]
+        vs = [v for _, v, _ in self._rule]
         k_mean, v_mean = sum(ks) / len(ks), sum(vs) / len(vs)
         sxx = sum((k - k_mean) ** 2 for k in ks)
+        if not sxx > 0:
+            return None
         slope = sum((k - k_mean) * (v - v_mean) for k, v in zip(ks, vs, strict=True)) / sxx
         if not slope < 0:
             return None
@@ -567,6 +828,8 @@ class Eta:
         return max((math.log(it.tol) - now) / slope, 1.0)
 
 
+#: the fewest values the ETA's fit of the rule's fall takes
+_FIT_MIN = 3
 #: iterations of the rule's value the ETA's fit of its fall looks back over
 _FIT = 8
 
@@ -676,7 +939,9 @@ def outcome(params: Mapping[str, Any], method: str | None = None, shown: Sequenc
     ----------
     params : Mapping of str to object
         The reconstruction's parameters: ``iterations``, ``converged``, and optionally
-        ``method``, ``max_iter``, ``stop_reason``, ``iterate_change``, ``tol`` and the
+        ``method``, ``max_iter``, ``stop_reason``, ``iterate_change``, ``tol``,
+        ``stop_armed_at`` (the first iteration the rule could stop at: said when it stopped
+        there) and the
         declared fields' (tv: ``lam``, ``lam_auto``, ``lam_note``, ``residual`` and
         ``noise_share``, shares of the data's norm).
     method : str, optional
@@ -697,6 +962,9 @@ def outcome(params: Mapping[str, Any], method: str | None = None, shown: Sequenc
     >>> outcome({"method": "tv", "converged": True, "stop_reason": "converged", "iterations": 37,
     ...          "max_iter": 100, "iterate_change": 0.0041, "tol": 0.005, "lam": 0.0123, "lam_auto": True}, shown=[lam])
     'tv: converged after 37 iterations (image change 0.0041 < 0.005); λ 0.0123 (automatic)'
+    >>> outcome({"method": "tv", "converged": True, "iterations": 53, "stop_armed_at": 53, "iterate_change": 0.00083,
+    ...          "tol": 0.005})
+    'tv: converged after 53 iterations, the earliest the rule can stop (image change 0.00083 < 0.005)'
     >>> outcome({"method": "ner"}) is None
     True
     """
@@ -709,7 +977,10 @@ def outcome(params: Mapping[str, Any], method: str | None = None, shown: Sequenc
     if change is not None and tol is not None:
         rule = f" (image change {change:.2g} {'<' if change < tol else '>='} {tol:.2g})"
     if params.get("converged"):
-        head = f"converged after {n} iterations{rule}"
+        # at the first iteration the rule could stop at (tv: after λ's continuation): a smaller
+        # tolerance already met there stops no later
+        earliest = ", the earliest the rule can stop" if params.get("stop_armed_at") == n else ""
+        head = f"converged after {n} iterations{earliest}{rule}"
     elif params.get("stop_reason") == "time limit":
         head = f"not converged: stopped at the time limit after {n} iterations{rule}"
     else:

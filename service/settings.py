@@ -11,18 +11,79 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import math
 import os
 import re
 import tomllib
+import zlib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["LOOPBACK_HOSTS", "is_loopback", "Settings"]
+__all__ = ["LOOPBACK_HOSTS", "MIN_TOKEN_BITS", "TOKEN_RECIPE", "is_loopback", "token_entropy_bits", "Settings"]
 
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+#: the least estimated entropy of a bearer token ``fpscan serve`` starts with (bits), unless told
+#: otherwise (``allow_weak_token``): 128 bits, the security strength NIST SP 800-57 Part 1 (Rev. 5),
+#: Table 2, asks of keys used beyond 2030
+MIN_TOKEN_BITS = 128
+#: the command that makes a token of 256 random bits (43 characters of base64url; ``secrets.token_urlsafe``)
+TOKEN_RECIPE = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
+
+#: character classes of a token and their sizes (:func:`token_entropy_bits`): a class counts
+#: whole once one of its characters is in the token
+_CHARACTER_CLASSES = (("abcdefghijklmnopqrstuvwxyz", 26), ("ABCDEFGHIJKLMNOPQRSTUVWXYZ", 26),
+                      ("0123456789", 10), ("-_", 2))
+_HEX = frozenset("0123456789abcdef")
+
+
+def token_entropy_bits(token: str) -> float:
+    """An upper estimate of a token's entropy, in bits: what a token drawn at random from the
+    character classes it uses would have, capped by its compressed length.
+
+    The alphabet is the sum of the classes the token uses (lower case 26, upper case 26,
+    digits 10, ``-`` and ``_`` 2, the rest of printable ASCII 30, any other character 2**16),
+    at most 16 for a token of hexadecimal digits alone; the estimate is
+    ``len(token) * log2(alphabet)`` (a random choice of that many characters), capped by the
+    bits of the token compressed with DEFLATE (RFC 1951; ``zlib``, raw, level 9): a token that
+    repeats itself (``"change-me-change-me-..."``, ``"aaaa..."``) compresses and is estimated
+    low. It is an upper bound for a token a person chose (it cannot see words, dates or
+    keyboard rows): the tokens to use are made at random (:data:`TOKEN_RECIPE`: 32 random
+    bytes, some 256 bits).
+
+    Parameters
+    ----------
+    token : str
+        The bearer token.
+
+    Returns
+    -------
+    float
+        The estimate, bits (0 for ``""``).
+
+    Examples
+    --------
+    >>> round(token_entropy_bits("change-me"))
+    43
+    >>> token_entropy_bits("3f9c2a7e51b8d04c6e1f0a93b7d25c48")  # 32 hexadecimal digits
+    128.0
+    """
+    if not token:
+        return 0.0
+    alphabet = sum(size for chars, size in _CHARACTER_CLASSES if any(ch in chars for ch in token))
+    known = "".join(chars for chars, _ in _CHARACTER_CLASSES)
+    if any(ch not in known and " " <= ch <= "~" for ch in token):
+        alphabet += 30  # the rest of printable ASCII (95 - 26 - 26 - 10 - 2 - the space)
+    if any(not " " <= ch <= "~" for ch in token):
+        alphabet += 2**16
+    if set(token.lower()) <= _HEX:
+        alphabet = min(alphabet, 16)
+    estimate = len(token) * math.log2(alphabet)
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)  # raw DEFLATE: no header, no checksum
+    compressed = len(packer.compress(token.encode("utf-8")) + packer.flush())
+    return min(estimate, 8.0 * compressed)
 
 
 def is_loopback(host: str) -> bool:
@@ -62,7 +123,13 @@ class Settings(BaseSettings):
     db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite); one "
                                  "server per database: the server locks <db_path>.lock beside it")
     devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
-    token: SecretStr | None = Field(None, description="bearer token; None = no token")
+    token: SecretStr | None = Field(None, description="bearer token; None = none given (fpscan serve then makes "
+                                    "one, unless no_token)")
+    allow_weak_token: bool = Field(False, description="let fpscan serve start with a token of under 128 bits of "
+                                   "estimated entropy (fpscan.service.settings.token_entropy_bits); default: refused")
+    no_token: bool = Field(False, description="serve without a token (loopback only): every user and program of "
+                           "this machine may then use the server; default: fpscan serve makes a token when none "
+                           "is given")
     executor: Literal["local", "dask"] = Field("local", description="where reconstructions run: 'local' "
                                                "(a process pool of this server) or 'dask' (a dask.distributed "
                                                "cluster at dask_scheduler)")
@@ -116,11 +183,13 @@ class Settings(BaseSettings):
                                     "(event streams included) are closed after this long, s")
     connections_per_address: int = Field(64, ge=1, le=100_000, description="most open connections of one client "
                                          "address that have not shown the token; more must show it in their first "
-                                         "request head (else 503)")
+                                         "request head (without a token: 503; a wrong one is refused as on any "
+                                         "connection)")
     max_connections: int | None = Field(None, ge=1, le=1_000_000, description="open connections without the "
                                         "token in all beyond which a client address gets only its allowance of 4 "
-                                        "(more must show the token in their first request head, else 503); None = "
-                                        "half the process's open-file limit")
+                                        "(more must show the token in their first request head; without a token: 503; "
+                                        "a wrong one is refused as on any connection); None = half the process's "
+                                        "open-file limit")
     uploads_per_client: int | None = Field(None, ge=1, le=1024, description="uploads (and plan requests) one client "
                                            "address may have in progress or waiting; more get 429 while the "
                                            "server's slots are not all taken by others; None = import_workers")
@@ -133,7 +202,12 @@ class Settings(BaseSettings):
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
-                                "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
+                                "whose address space is capped at memory_limit, at least 1 GiB); up to 4x as many "
+                                "more wait, further ones get 429")
+    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (a result's exports stream "
+                                "its volume in slabs of a few MiB, in the server's process; a scan's IPASC export "
+                                "reads the whole scan); up to 4x as many more wait (for a turn or for another "
+                                "request's build of the same file), further ones get 429")
     host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "
@@ -167,9 +241,9 @@ class Settings(BaseSettings):
                                                       "(None = no limit)")
     retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
                                                        "job reads once older than this, s (None = never)")
-    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
-                                    "dataset that would leave less (counting imports in flight) is refused with 507; "
-                                    "below it /api/health lists the disk as full")
+    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload or its import, and an "
+                                    "export's build, must leave: one that would leave less (counting those in "
+                                    "flight) is refused with 507; below it /api/health lists the disk as full")
     db_reserve_bytes: int = Field(8 * 2**20, ge=0, le=2**30, description="bytes kept in a reserve file beside the "
                                   "job database and given up when its disk fills, so that jobs' final states, cancels "
                                   "and deletions can still be written (0 = none)")
@@ -198,6 +272,12 @@ class Settings(BaseSettings):
                                  "or '*' for any")
             out.append(name)
         return out
+
+    @model_validator(mode="after")
+    def _one_token_rule(self) -> Settings:
+        if self.no_token and (self.token is not None or self.token_file is not None):
+            raise ValueError("no_token and a token (token or token_file) both given: choose one")
+        return self
 
     @model_validator(mode="after")
     def _dask_address(self) -> Settings:

@@ -12,7 +12,8 @@ SHARED = Path(os.environ.get("FPSCAN_SHARED", REPO_ROOT.parent / "shared"))
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
-    """The folder of k-Wave reference data (``../shared/data``); skips if absent."""
+    """The folder of k-Wave reference data (``$FPSCAN_SHARED/data``, by default in the folder
+    ``shared`` beside the repository); skips if absent."""
     path = SHARED / "data"
     if not path.is_dir():
         pytest.skip(f"shared reference data not found at {path} (set FPSCAN_SHARED)")

@@ -432,8 +432,9 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
     ----------
     progress : dict
         A job's progress (``stage``, ``fraction``, ``points_done``, ``points_total``,
-        ``rate_per_s``, ``eta_s`` and ``eta_max_s`` in s, an iterative method's iteration
-        fields, ``faults_recovered``), any of them absent.
+        ``rate_per_s``, ``eta_s`` and ``eta_max_s`` in s, ``iterations_left_max`` and
+        ``eta_basis``, an iterative method's iteration fields, ``faults_recovered``), any of
+        them absent.
     with_fraction : bool, optional
         Show the percentage when there is no point count (default True).
 
@@ -441,8 +442,9 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
     -------
     str
         Stage, an iterative method's stopping rule against its tolerance, points done/total,
-        points/s, ETA (the server's, or the one estimated by :class:`ProgressBar`) and,
-        without a point count, the percentage; two spaces between the parts.
+        points/s, ETA (the server's, or the one estimated by :class:`ProgressBar`; an iterative
+        method's with its bound, the iterations left at most) and, without a point count, the
+        percentage; two spaces between the parts.
     """
     parts = []
     stage = progress.get("stage")
@@ -459,10 +461,16 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
     if rate:
         parts.append(f"{rate:.0f} points/s")
     if progress.get("eta_s") is not None and progress.get("stage") not in ("done", "aborted"):
-        bound = progress.get("eta_max_s")
-        if bound is not None and float(bound) > float(progress["eta_s"]) + 0.5:  # an estimate, and its bound
+        most, limit = progress.get("iterations_left_max"), progress.get("eta_max_s")
+        if most is not None and progress.get("eta_basis") == "stopping rule":  # an estimate, and its bound
+            at_rate = f", ~{_fmt_eta(limit)} at the current rate" if limit is not None else ""
             parts.append(f"ETA ~{_fmt_eta(progress.get('eta_s'))} (estimate: stopping rule; "
-                         f"at most {_fmt_eta(bound)} at the iteration limit)")
+                         f"at most {most} more iteration{'s' if most != 1 else ''}{at_rate})")
+        elif most is not None and progress.get("eta_basis") == "earliest stop":  # a lower bound
+            parts.append(f"ETA ≥ {_fmt_eta(progress.get('eta_s'))} (the earliest the rule can stop; "
+                         f"at most {most} more iteration{'s' if most != 1 else ''})")
+        elif most is not None:  # the time to the iteration limit at the measured rate
+            parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))} (to the iteration limit)")
         else:
             parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))}")
     frac = progress.get("fraction")
@@ -521,7 +529,8 @@ class ProgressBar:
     every ``period`` s (default :func:`progress_period`) while the job runs, even between
     reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated here
     by the one model of ``fpscan.service.progress.Eta`` (an iterative method's from its measured
-    time per iteration, moving at most 2x between updates). :meth:`finish` ends the bar
+    time per iteration, moving at most 2x between updates), counted down between reports and
+    never shown under 5 s for longer than 5 s (``fpscan.service.progress.Countdown``). :meth:`finish` ends the bar
     with the outcome (``"converged after 37 iterations"``) rather than the last stage.
 
     Parameters
@@ -552,9 +561,10 @@ class ProgressBar:
         self._task: TaskID | None = None
         self._last_stage: str | None = None
         self._printed: tuple[float, str | None] = (0.0, None)  # the last line's fraction and stage
-        from fpscan.service.progress import Eta
+        from fpscan.service.progress import Countdown, Eta
 
         self._eta = Eta()
+        self._countdown = Countdown()  # the ETA shown, counted down between reports
         self._latest: dict | None = None
         self._latest_at = 0.0
         self._printed_at = 0.0
@@ -596,9 +606,14 @@ class ProgressBar:
             progress["fraction"] = frac
         now = time.monotonic()
         if progress.get("eta_s") is None and frac is not None:
-            progress["eta_s"] = self._eta(float(frac), progress.get("stage"))
-            if progress["eta_s"] is not None and self._eta.bound_s is not None:
-                progress["eta_max_s"] = self._eta.bound_s
+            from fpscan.service.progress import stage_of
+
+            progress["eta_s"] = self._eta(float(frac), stage_of(progress))  # with the rule's numbers, as the worker's
+            if progress["eta_s"] is not None and self._eta.bound_iterations is not None:
+                progress.update(iterations_left_max=self._eta.bound_iterations, eta_max_s=self._eta.limit_s,
+                                eta_basis=self._eta.basis)
+        with self._lock:  # what is shown of the ETA: never under 5 s for longer than 5 s
+            progress["eta_s"] = self._countdown.set(progress.get("eta_s"), now)
         if self._progress is not None and self._task is not None:
             self._progress.update(self._task, info=describe_progress(progress, with_fraction=False),
                                   completed=None if frac is None else float(frac))
@@ -652,9 +667,11 @@ class ProgressBar:
                 if self._latest is not None and now - self._printed_at >= self.period and \
                         not _complete(self._latest):
                     latest = dict(self._latest)
-                    for key in ("eta_s", "eta_max_s"):  # the time since the last report has passed
-                        if latest.get(key) is not None:
-                            latest[key] = max(float(latest[key]) - (now - self._latest_at), 0.0)
+                    # the time since the last report has passed: the ETA counted down (never under
+                    # 5 s for longer than 5 s: fpscan.service.progress.Countdown)
+                    latest["eta_s"] = self._countdown.read(now)
+                    if latest.get("eta_max_s") is not None:
+                        latest["eta_max_s"] = max(float(latest["eta_max_s"]) - (now - self._latest_at), 0.0)
                     self._print(latest, now)
 
     def __exit__(self, *exc: Any) -> None:

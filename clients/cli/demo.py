@@ -239,7 +239,7 @@ class Demo:
         from fpscan.clients.http import Client
         from fpscan.clients.processes import start_service
 
-        token = secrets.token_urlsafe(16)
+        token = secrets.token_urlsafe(32)
         srv = start_service((self.out / "server-data").resolve(), token=token, devices={"sim": device},
                             env={"FPSCAN_EXECUTOR": "local"}, log_path=self.out / "logs" / "server.log",
                             timeout=90)
@@ -273,7 +273,7 @@ class Demo:
             # reconstruct in the executor while the next scan runs
             recon_jobs[recon_name] = (method, api.start_reconstruction(
                 scan_job_id=job_id, method=method,
-                params={"n_z": min(DEFAULTS["n_z"], a.n_t)}))  # the default precision (float32)
+                params={"n_z": min(DEFAULTS["n_z"], a.n_t), "dz": C_DEFAULT * a.dt}))  # c·dt rows; float32
         self.report["scans"] = scans
         self.report["reconstructions"] = self._collect_reconstructions(api, recon_jobs)
         self._figures()

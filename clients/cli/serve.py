@@ -9,7 +9,9 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
-__all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "run", "use_malloc"]
+    from fpscan.service.settings import Settings
+
+__all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "page_url", "run", "use_malloc"]
 
 #: set in the environment of the server process that :func:`use_malloc` started
 _REEXEC_MARK = "FPSCAN_SERVE_MALLOC"
@@ -36,7 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", action="append", default=[], metavar="ID=PATH",
                         help="a scanner: id and serial device path or pyserial URL (repeatable)")
     parser.add_argument("--token", default=None, help="bearer token (default: $FPSCAN_TOKEN, else the file "
-                        "$FPSCAN_TOKEN_FILE names, e.g. a Docker secret)")
+                        "$FPSCAN_TOKEN_FILE names, e.g. a Docker secret; none given: one is made and printed "
+                        "with the page's address)")
+    parser.add_argument("--allow-weak-token", action="store_true", default=None,
+                        help="start with a token of under 128 bits of estimated entropy (refused otherwise)")
+    parser.add_argument("--no-token", action="store_true", default=None,
+                        help="serve without a token, on loopback only: every user and program of this machine "
+                             "may then use the server")
     parser.add_argument("--executor", choices=["local", "dask"], default=None, help="where reconstructions run")
     parser.add_argument("--dask-scheduler", default=None, help="dask.distributed scheduler address")
     parser.add_argument("--workers", type=int, default=None, help="local process pool size")
@@ -114,35 +122,19 @@ def use_malloc() -> None:
     os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status.
-
-    The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
-    itself in place once, before anything else).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The parsed command line (:func:`add_arguments`).
-
-    Returns
-    -------
-    int
-        The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
-        use.
-    """
-    use_malloc()
+def _settings(args: argparse.Namespace) -> Settings:
+    """The server's settings: the settings file and environment (``Settings.load``), the
+    command line's options over them; a bind beyond loopback, or any host name, without a token
+    is refused (:class:`UsageError`)."""
     import importlib.resources
-    import json
-    import logging
-    import sys
 
     from pydantic import ValidationError
 
     from fpscan.service.settings import Settings, is_loopback
 
     overrides = {}
-    for name in ("host", "port", "data_dir", "token", "executor", "dask_scheduler", "workers", "log_level"):
+    for name in ("host", "port", "data_dir", "token", "executor", "dask_scheduler", "workers", "log_level",
+                 "allow_weak_token", "no_token"):
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
@@ -166,6 +158,32 @@ def run(args: argparse.Namespace) -> int:
                          "(or $FPSCAN_TOKEN_FILE)")
     if "*" in settings.allowed_hosts and settings.token_value() is None:
         raise UsageError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
+    return settings
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
+    itself in place once, before anything else).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
+        use.
+    """
+    use_malloc()
+    import json
+    import logging
+    import sys
+
+    settings, made_token = _token_rules(_settings(args))
 
     # one server per data folder and per job database (wherever FPSCAN_DB_PATH puts it), on a
     # free port: each refused in one line before anything reads the job store (its start-up
@@ -215,6 +233,9 @@ def run(args: argparse.Namespace) -> int:
         server = uvicorn.Server(server_config(app, settings))
         print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
                           "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
+        if made_token is not None:
+            print(f"fpscan serve: no token given, this one made for this run: open {page_url(settings, made_token)} "
+                  f"; clients: export FPSCAN_TOKEN={made_token}", file=sys.stderr, flush=True)
         server.run()
     finally:
         if executor is not None and not getattr(executor, "closed", False):  # the app's shutdown closes it
@@ -222,6 +243,64 @@ def run(args: argparse.Namespace) -> int:
         store_lock.release()
         folder_lock.release()
     return 0
+
+
+def page_url(settings: Any, token: str | None = None) -> str:
+    """The web page's address for ``settings`` (its host and port), with ``token`` in the
+    fragment (``#token=...``: the page keeps it for its tab and takes it out of the address; a
+    fragment is never sent to a server, so no request log holds it). :func:`run` prints this
+    address once at start, with a token it made, on standard error: the server's own log,
+    which therefore holds the token (keep it private, or give a token).
+
+    Parameters
+    ----------
+    settings : Settings
+        The service's settings (``host``, ``port``; a wildcard bind is shown as 127.0.0.1).
+    token : str or None, optional
+        The token to sign in with; default None: none.
+
+    Returns
+    -------
+    str
+        ``http://HOST:PORT/`` or ``http://HOST:PORT/#token=TOKEN``.
+    """
+    from urllib.parse import quote
+
+    host = settings.host if settings.host not in ("0.0.0.0", "::", "") else "127.0.0.1"
+    host = f"[{host}]" if ":" in host else host
+    return f"http://{host}:{settings.port}/" + (f"#token={quote(token, safe='')}" if token else "")
+
+
+def _token_rules(settings: Any) -> tuple[Any, str | None]:
+    """The token rules of ``fpscan serve``: a token given must have at least
+    ``MIN_TOKEN_BITS`` of estimated entropy (``token_entropy_bits``) unless
+    ``allow_weak_token``; none given (and not ``no_token``), one is made
+    (``secrets.token_urlsafe(32)``: 256 random bits), as Jupyter Server does. Returns the
+    settings (with the made token) and the made token (None when none was made).
+
+    Raises
+    ------
+    UsageError
+        A weak token not allowed (a ``ValueError``).
+    """
+    import secrets
+
+    from pydantic import SecretStr
+
+    from fpscan.service.settings import MIN_TOKEN_BITS, TOKEN_RECIPE, token_entropy_bits
+
+    if settings.no_token:  # loopback only: run() refused a wider bind without a token already
+        return settings, None
+    token = settings.token_value()  # reads token_file: an unreadable one is refused here
+    if token is None:
+        made = secrets.token_urlsafe(32)
+        return settings.model_copy(update={"token": SecretStr(made)}), made
+    bits = token_entropy_bits(token)
+    if bits < MIN_TOKEN_BITS and not settings.allow_weak_token:
+        raise UsageError(f"the token is weak (about {bits:.0f} bits of estimated entropy, under {MIN_TOKEN_BITS}): "
+                         f"make one with {TOKEN_RECIPE}, or leave it out and one is made; "
+                         "--allow-weak-token (FPSCAN_ALLOW_WEAK_TOKEN=true) starts with it anyway")
+    return settings, None
 
 
 def _install_json_messages() -> None:

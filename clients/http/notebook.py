@@ -61,8 +61,8 @@ def describe(progress: Mapping[str, Any]) -> str:
     ----------
     progress : Mapping of str to object
         A job's progress fields (``stage``; ``iteration``, ``iterations_max``, ``stop_rule``,
-        ``stop_value``, ``stop_tol``, ``stop_armed`` and ``stop_waits_for`` while a method
-        iterates).
+        ``stop_value``, ``stop_tol``, ``stop_armed``, ``stop_armed_at`` and ``stop_waits_for``
+        while a method iterates).
 
     Returns
     -------
@@ -79,6 +79,10 @@ def describe(progress: Mapping[str, Any]) -> str:
     >>> describe({"stage": "iteration 3/100", "iteration": 3, "iterations_max": 100, "stop_rule": "image change",
     ...           "stop_value": 0.2, "stop_tol": 0.005, "stop_armed": False, "stop_waits_for": "λ has settled"})
     'iteration 3/100, image change 0.2 (stops below 0.005 once λ has settled)'
+    >>> describe({"stage": "iteration 3/100 (λ continuation 3/50)", "iteration": 3, "iterations_max": 100,
+    ...           "stop_rule": "image change", "stop_value": 0.2, "stop_tol": 0.005, "stop_armed": False,
+    ...           "stop_armed_at": 53, "stop_waits_for": "λ has settled"})
+    'iteration 3/100, image change 0.2 (stops below 0.005 once λ has settled, from iteration 53)'
     """
     k, n = progress.get("iteration"), progress.get("iterations_max")
     if k is None or n is None:
@@ -89,7 +93,11 @@ def describe(progress: Mapping[str, Any]) -> str:
         text += f", {progress.get('stop_rule') or 'stopping rule'} {value:.2g}"
         if tol is not None:
             # what the rule waits for in its method's words (tv: "λ has settled"), as the server's line
-            later = "" if progress.get("stop_armed", True) else f" once {progress.get('stop_waits_for') or 'armed'}"
+            later = ""
+            if not progress.get("stop_armed", True):
+                later = f" once {progress.get('stop_waits_for') or 'armed'}"
+                if progress.get("stop_armed_at") is not None:
+                    later += f", from iteration {progress['stop_armed_at']}"
             text += f" (stops below {tol:.2g}{later})" if tol > 0 else " (tol 0: no early stop)"
     return text
 

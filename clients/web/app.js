@@ -20,7 +20,9 @@
  * Sign-in: the page first asks GET /api/auth (no token needed) whether the server needs a
  * bearer token; if it does, a login view is shown before any other request, and the token
  * is kept in sessionStorage (this tab only) until "Sign out". A later 401 (the token was
- * changed on the server) shows the login view again and retries the request once.
+ * changed on the server) shows the login view again and retries the request once. An address
+ * ending in #token=TOKEN (the one `fpscan serve` prints with the token it made) signs in with
+ * that token, and the fragment is taken out of the address bar and the history.
  */
 "use strict";
 
@@ -39,6 +41,18 @@ class ApiError extends Error {
 }
 
 function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
+
+/** The token of an address ending in #token=TOKEN (`fpscan serve` prints one with the token it
+ *  made): kept for this tab, and the fragment replaced by the default view's, so that the token
+ *  stays out of the history, bookmarks and screenshots. A fragment never reaches the server. */
+function takeTokenFromAddress() {
+  const m = /^#token=([^&]*)$/.exec(location.hash);
+  if (!m) return;
+  let token = "";
+  try { token = decodeURIComponent(m[1]).trim(); } catch (_) { /* not percent-encoded UTF-8 */ }
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  history.replaceState(null, "", location.pathname + location.search + "#/plan");
+}
 
 /* The quantities the server's plausibility rules name, in the units the page's fields show them
  * (their data-unit / display_unit): a reason about one is worded in its field's unit. */
@@ -1121,13 +1135,15 @@ function jobProgressText(j) {
 
 /** "iteration 7/100, image change 0.021 (stops below 0.005)" from a job's progress fields
  *  (iteration, iterations_max, stop_rule, stop_value, stop_tol, stop_armed, stop_waits_for: what
- *  the method's rule waits for while not armed, in its own words); null without them. */
+ *  the method's rule waits for while not armed, in its own words, and stop_armed_at: the first
+ *  iteration it can stop at); null without them. */
 function iterationText(p) {
   if (p.iteration === undefined || p.iteration === null || !p.iterations_max) return null;
   let t = `iteration ${p.iteration}/${p.iterations_max}`;
   if (typeof p.stop_value === "number") {
     t += `, ${p.stop_rule || "stopping rule"} ${fmtNum(p.stop_value, 2)}`;
-    const later = p.stop_armed === false ? ` once ${p.stop_waits_for || "armed"}` : "";
+    let later = p.stop_armed === false ? ` once ${p.stop_waits_for || "armed"}` : "";
+    if (p.stop_armed === false && typeof p.stop_armed_at === "number") later += `, from iteration ${p.stop_armed_at}`;
     if (typeof p.stop_tol === "number") t += p.stop_tol > 0 ? ` (stops below ${fmtNum(p.stop_tol, 2)}${later})` : " (tol 0: no early stop)";
   }
   return t;
@@ -1175,7 +1191,9 @@ function outcomeOf(used) {
     rule = ` (image change ${fmtNum(used.iterate_change, 2)} ${used.iterate_change < used.tol ? "<" : "≥"} ${fmtNum(used.tol, 2)})`;
   }
   let head;
-  if (used.converged) head = `converged after ${n} iterations${rule}`;
+  // at the first iteration the rule could stop at (tv: after λ's continuation): as fpscan.service.progress.outcome
+  const earliest = used.stop_armed_at === n ? ", the earliest the rule can stop" : "";
+  if (used.converged) head = `converged after ${n} iterations${earliest}${rule}`;
   else if (used.stop_reason === "time limit") head = `not converged: stopped at the time limit after ${n} iterations${rule}`;
   else head = `not converged: stopped at the iteration limit, ${n}${used.max_iter ? " of " + used.max_iter : ""} iterations${rule}`;
   return { head, converged: !!used.converged };
@@ -1966,6 +1984,7 @@ async function health() {
 }
 
 async function init() {
+  takeTokenFromAddress();
   updateTokenButton();
   // the page's own quantity fields (the generated ones are made so as they are built)
   for (const input of document.querySelectorAll("input[data-unit]")) makeQuantityField(input, input.dataset.unit);

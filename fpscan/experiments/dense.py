@@ -64,7 +64,7 @@ class DenseDataset(GridDataset):
         return self.data.shape[0]
 
     def depth_rows(self, minimum: int) -> int:
-        """Output depth rows at spacing ``c·dt`` (the reconstructions' default grid) that
+        """Output depth rows at spacing ``c·dt`` (the experiments' depth grid, asked for as ``dz``) that
         cover the ground truth's depth (``p0`` rows × ``dz``), or half the samples without
         a ground truth; at least ``minimum`` and at most ``n_t``."""
         if self.p0 is not None and self.dz:

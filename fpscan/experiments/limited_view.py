@@ -167,7 +167,7 @@ def run(
     x = centred_axis(n_x, dx)
 
     t_start = time.perf_counter()
-    ref_img = reconstruct(data, "ner", n_z=n_z, dtype="float64")
+    ref_img = reconstruct(data, "ner", n_z=n_z, dz=dz, dtype="float64")
     t_ref = time.perf_counter() - t_start
     ref = ref_img.p0
     z = np.asarray(ref_img.z)
@@ -180,7 +180,7 @@ def run(
     from fpscan.service.plans import Lattice
 
     lattice = Lattice(n_x, 1, dx)
-    line = _Line(g=g, x=x, dx=dx, dt=dt, c=c, n_z=n_z)
+    line = _Line(g=g, x=x, dx=dx, dt=dt, c=c, n_z=n_z, dz=dz)
     _run_equispaced(table, line, lattice, range(1, 33) if intervals is None else intervals, n_sensors)
     weight_ratio = np.nan
     if include_equiangular:
@@ -265,7 +265,7 @@ def _scorer(data: DenseDataset, ref: np.ndarray, z: np.ndarray, x: np.ndarray,
 @dataclass
 class _Line:
     """The line data ``g`` ``(n_t, n_x)`` with lateral axis ``x`` (m), and what every
-    reconstruction of it shares: ``dx`` m, ``dt`` s, ``c`` m/s, ``n_z`` depth rows."""
+    reconstruction of it shares: ``dx`` m, ``dt`` s, ``c`` m/s, ``n_z`` depth rows of ``dz`` m."""
 
     g: np.ndarray
     x: np.ndarray
@@ -273,6 +273,7 @@ class _Line:
     dt: float
     c: float
     n_z: int
+    dz: float
 
     def points(self, idx: np.ndarray, positions: np.ndarray, weights: np.ndarray) -> PointDataset:
         """The A-lines of line points ``idx`` at ``positions`` ``(n, 1)`` m with ``weights`` (m)."""
@@ -281,7 +282,7 @@ class _Line:
 
     def reconstruct(self, data: GridDataset | PointDataset, method: str, **params: Any) -> np.ndarray:
         """p0 ``(n_z, n_x)`` of ``data`` by ``method`` on this line's grid (float64)."""
-        return reconstruct(data, method, n_z=self.n_z, dtype="float64", **params).p0
+        return reconstruct(data, method, n_z=self.n_z, dz=self.dz, dtype="float64", **params).p0
 
 
 @dataclass

@@ -100,17 +100,17 @@ def _timed(fn: Callable[[], np.ndarray], repeats: int) -> tuple[np.ndarray, floa
 
 
 def _reconstruct(method: str, data: DenseDataset, n_z: int) -> np.ndarray:
-    """p0 rows ``0..n_z-1`` (spacing c·dt) of a float64 reconstruction on the default
-    n_t-row grid (:func:`fpscan.service.pipeline.reconstruct`): the pipeline's ``method`` or, for
+    """p0 rows ``0..n_z-1`` (spacing c·dt) of a float64 reconstruction on k-Wave's grid, n_t rows of
+    c·dt (:func:`fpscan.service.pipeline.reconstruct`): the pipeline's ``method`` or, for
     ``"kwave-<interp>"``, its ``kwave`` method (k-Wave's kspaceLineRecon /
     kspacePlaneRecon) with that interpolation (``'*linear'`` for ``kwave-linear``)."""
     if method.startswith("kwave-"):
         interp = {"linear": "*linear", "nearest": "*nearest"}.get(method[6:], method[6:])
         return reconstruct(data, "kwave", interp=interp, dtype="float64").p0[:n_z]
-    # every method on its default output grid, n_t rows of c·dt (k-Wave's too), then the
-    # rows analysed: asking the FFT + interpolation methods for fewer rows (n_z < n_t)
-    # puts their k_z grid off the ω grid and worsens their gain error.
-    return reconstruct(data, method, dtype="float64").p0[:n_z]
+    # every method on k-Wave's output grid, n_t rows of c·dt, then the rows analysed: asking
+    # the FFT + interpolation methods for fewer rows (n_z < n_t) puts their k_z grid off the
+    # ω grid and worsens their gain error.
+    return reconstruct(data, method, dz=data.sound_speed * data.dt, n_z=data.n_t, dtype="float64").p0[:n_z]
 
 
 def _axial_lateral(p: np.ndarray, z: np.ndarray, x: np.ndarray, cols: np.ndarray, zs: slice, kz: int, width: float,

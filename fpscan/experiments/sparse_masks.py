@@ -146,7 +146,7 @@ def run(
         poi_depth = POI_DEPTH_RATIO * side
 
     t0 = time.perf_counter()
-    full = reconstruct(data, "ner", n_z=n_z, dtype="float64")
+    full = reconstruct(data, "ner", n_z=n_z, dz=data.sound_speed * data.dt, dtype="float64")
     t_full = time.perf_counter() - t0
     score = _Scoring.of(mip(full.p0, "xy"), data.p0, x, side, n_diameters)
     arrangements, weight_ratio = _arrangements(n, d, poi_depth, round(fraction * n * n), intervals, n_side,
@@ -242,13 +242,13 @@ def _arrangements(n: int, d: float, poi_depth: float, n_points: int, intervals: 
 
 def _reconstruct(data: DenseDataset, arrangement: _Arrangement, x: np.ndarray, n_z: int,
                  tv_iterations: int | None) -> np.ndarray:
-    """p0 ``(n_z, n, n)`` (float64) reconstructed on the lattice (axis ``x`` m both ways)
+    """p0 ``(n_z, n, n)`` (float64, rows of c·dt) reconstructed on the lattice (axis ``x`` m both ways)
     from the arrangement's A-lines of the dense data, with its positions, weights and
     method (``tv`` capped at ``tv_iterations``)."""
     opts: dict[str, Any] = {"max_iter": tv_iterations} if arrangement.method == "tv" else {}
     points = PointDataset(alines=data.data[:, arrangement.iy, arrangement.ix].T, positions=arrangement.positions,
                           weights=arrangement.weights, dt=data.dt, sound_speed=data.sound_speed, grid=(x, x))
-    return reconstruct(points, arrangement.method, n_z=n_z, dtype="float64", **opts).p0
+    return reconstruct(points, arrangement.method, n_z=n_z, dz=data.sound_speed * data.dt, dtype="float64", **opts).p0
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,10 @@ health in :mod:`fpscan.service.api.health`), error handling (every error is
 ``{"detail": "<reason>"}``; internals stay in the log: :mod:`fpscan.service.api.errors`), the
 middlewares (each in its module: :mod:`fpscan.service.api.upload_limit`,
 :mod:`fpscan.service.api.json_depth`, :mod:`fpscan.service.api.short_ids`, :mod:`fpscan.service.api.access`,
-:mod:`fpscan.service.api.lanes`, :mod:`fpscan.service.api.internal_errors`), the OpenAPI schema
-(:mod:`fpscan.service.api.openapi`) and the static web page (``settings.web_root``).
+:mod:`fpscan.service.api.lanes`, :mod:`fpscan.service.api.internal_errors`,
+:mod:`fpscan.service.api.browser_headers`), the OpenAPI schema (:mod:`fpscan.service.api.openapi`), its
+reference page (``/docs``: :mod:`fpscan.service.api.reference_pages`) and the static web page
+(``settings.web_root``).
 """
 from __future__ import annotations
 
@@ -124,7 +126,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     settings = settings or Settings.load()
     slots = default_slots(settings)
     app = FastAPI(title="fpscan", version=VERSION, lifespan=_lifespan(settings, slots, start_workers, executor),
-                  responses=ERROR_RESPONSES,
+                  responses=ERROR_RESPONSES, docs_url=None, redoc_url=None,  # served from files: reference_pages
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     add_error_handlers(app)
     from fpscan.service.api.json_depth import JsonDepthLimit
@@ -134,22 +136,29 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                        body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
                        min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)
     app.add_middleware(ShortIds)
-    from fpscan.service.api.access import AccessGate
+    from fpscan.service.api.access import AccessGate, TokenFailures
     from fpscan.service.api.lanes import HealthLane, RequestTurns
 
+    failures = TokenFailures()  # wrong tokens per client address: the gate's and health's lane's
     app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
-    app.add_middleware(AccessGate, settings=settings)  # before any slot, thread, turn or body byte
+    app.add_middleware(AccessGate, settings=settings, failures=failures)  # before any slot, thread, turn or body byte
 
     from fpscan.service.api import datasets, exports, jobs, plans, reconstructions, retention, scans
 
     health_document = add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
-    app.add_middleware(HealthLane, settings=settings, document=health_document)
-    app.add_middleware(InternalErrors)  # outermost: no error drops a kept-alive connection
+    app.add_middleware(HealthLane, settings=settings, document=health_document, failures=failures)
+    app.add_middleware(InternalErrors)  # no error drops a kept-alive connection
+    from fpscan.service.api.browser_headers import BrowserHeaders
+
+    app.add_middleware(BrowserHeaders)  # outermost: every answer, refusals included, carries them
     for module in (plans, scans, datasets, reconstructions, jobs, exports, retention):
         app.include_router(module.router)
     state_security_in_openapi(app, settings)
     render_openapi_once(app)
+    from fpscan.service.api.reference_pages import add_reference_pages
+
+    add_reference_pages(app)  # /docs from installed files, before the web page's catch-all mount
     _mount_web_page(app, settings)
     return app
 

@@ -11,11 +11,17 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   only an address's :data:`CONNECTION_ALLOWANCE`) is taken as a stranger's. Beyond it, the
   connection is taken **on probation** (a pool of its own, bounded: half of what the
   open-file limit leaves beyond ``max_connections``): its first request head must come within
-  :data:`PROBATION_HEAD_S` and carry the token, else it is answered ``503`` and closed. A
+  :data:`PROBATION_HEAD_S` and carry the token: without one it is answered ``503`` and
+  closed; with a wrong one it is refused by the access gate (below), which closes it. A
   connection whose request head carries the valid token leaves the strangers' numbers for
   good: only the open-file limit (less :data:`FD_HEADROOM`) bounds such connections, so
   strangers holding their whole budget, from the token holder's own address or any other,
-  never refuse the token holder. Without a token configured every connection is a
+  never refuse the token holder. A wrong token on probation goes on to the access gate
+  (``fpscan.service.api.access.AccessGate``, the one owner of wrong tokens: their count, the
+  wait of an address that sent too many, its held ``429``), marked
+  (``fpscan.service.api.access.PROBATION_EXTENSION``) so that the gate refuses it whatever its
+  path: every token is compared, on every connection, and a wrong one is answered no sooner
+  than it would be on a stranger's. Without a token configured every connection is a
   stranger's. A connection beyond every pool is refused at accept time (``503`` with the
   reason, ``Connection: close``, before anything of it is read).
 - **A deadline in every phase** (:class:`GuardedHttp`, one timer per connection, token or
@@ -50,6 +56,7 @@ from typing import Any
 import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
+from fpscan.service.api.browser_headers import SECURITY_HEADERS
 from fpscan.service.api.logcaps import RefusalLog, install_log_caps, shown
 from fpscan.service.settings import Settings
 
@@ -338,7 +345,11 @@ class GuardedHttp(HttpToolsProtocol):
     send_buffer_bytes : int or None
         The kernel's send buffer of each connection (``SO_SNDBUF``; None: autotuned).
     token_value : callable or None
-        Returns the configured token (None: no token; every connection stays a stranger).
+        Returns the configured token (None: no token; every connection stays a stranger). Every
+        token is compared: the right one makes the connection trusted, whatever its address sent
+        before; a wrong one on probation goes on to the access gate, marked
+        (``fpscan.service.api.access.PROBATION_EXTENSION``), which counts it and refuses it
+        (``401``; ``429`` after the wait of an address that must wait).
     refusals : RefusalLog
         The rate-limited log of refusals.
     """
@@ -447,7 +458,12 @@ class GuardedHttp(HttpToolsProtocol):
             self.guard.trust(self._address, self._pool)
             self._pool = "trusted"
         elif self._pool == "probation":
-            raise _NoToken()
+            if self._token_state() != "wrong":
+                raise _NoToken()
+            # a wrong token: the gate's to count, hold and refuse (whatever the path), as on any connection
+            from fpscan.service.api.access import PROBATION_EXTENSION
+
+            self.scope.setdefault("extensions", {})[PROBATION_EXTENSION] = {}
         self._in_body, self._body_left = True, self._declared_length()
         cycle = self.cycle
         super().on_headers_complete()
@@ -527,18 +543,26 @@ class GuardedHttp(HttpToolsProtocol):
             return False
 
     def _shows_token(self) -> bool:
+        return self._token_state() == "right"
+
+    def _token_state(self) -> str:
+        """The request head's token: ``"right"``, ``"wrong"``, ``"none"`` (no token sent or
+        configured)."""
         if self.token_value is None:
-            return False
+            return "none"
         try:
             expected = self.token_value()
         except ValueError:
-            return False
+            return "none"
         if expected is None:
-            return False
+            return "none"
         from fpscan.service.api.access import token_matches
 
         given = next((v.decode("latin-1") for k, v in self.headers if k == b"authorization"), None)
-        return token_matches(given, expected) is None
+        if given is None:
+            return "none"
+        why = token_matches(given, expected)
+        return "right" if why is None else "wrong" if why == "invalid bearer token" else "none"
 
     def _declared_length(self) -> int:
         for name, value in self.headers:
@@ -630,7 +654,9 @@ class GuardedHttp(HttpToolsProtocol):
         cycle.send = send_while_open
 
     def _answer_and_close(self, status: int, detail: str) -> None:
-        """Write a JSON error answer with ``Connection: close`` and close the connection."""
+        """Write a JSON error answer with ``Connection: close`` and the headers browsers obey on
+        every answer (``fpscan.service.api.browser_headers.SECURITY_HEADERS``), and close the
+        connection."""
         import json
 
         self._closed_by_us = True
@@ -639,7 +665,8 @@ class GuardedHttp(HttpToolsProtocol):
         phrase = {400: "Bad Request", 431: "Request Header Fields Too Large", 503: "Service Unavailable"}[status]
         head = (f"HTTP/1.1 {status} {phrase}\r\ncontent-type: application/json\r\n"
                 f"content-length: {len(body)}\r\nconnection: close\r\n"
-                + ("retry-after: 5\r\n" if status == 503 else "") + "\r\n").encode()
+                + ("retry-after: 5\r\n" if status == 503 else "")).encode()
+        head += b"".join(name + b": " + value + b"\r\n" for name, value in SECURITY_HEADERS) + b"\r\n"
         if not self.transport.is_closing():
             self.transport.write(head + body)
             self.transport.close()  # a reader that does not take even this: dropped at its deadline

@@ -138,16 +138,20 @@ def default_slots(settings: Settings) -> dict[str, Slots]:
     Returns
     -------
     dict of str to Slots
-        ``uploads`` (``settings.import_workers`` imports at once, 4x as many waiting) and
+        ``uploads`` (``settings.import_workers`` imports at once, 4x as many waiting),
         ``plans`` (one plan built at a time, 8 waiting: plan work is mostly JSON and
         validation holding the GIL, so a second thread would only slow the other routes
-        down). Both go per client first (``settings.uploads_per_client``, default
-        ``import_workers``: :class:`Slots`' ``per_client``).
+        down), both per client first (``settings.uploads_per_client``, default
+        ``import_workers``: :class:`Slots`' ``per_client``), and ``exports``
+        (``settings.export_workers`` export builds at once, 4x as many waiting:
+        ``fpscan.service.api.exports``).
     """
     n = settings.import_workers
     share = settings.uploads_per_client or n
+    e = settings.export_workers
     return {"uploads": Slots("uploads", n, 4 * n, per_client=share),
-            "plans": Slots("plan requests", 1, 8, per_client=share)}
+            "plans": Slots("plan requests", 1, 8, per_client=share),
+            "exports": Slots("exports", e, 4 * e)}
 
 
 @dataclass

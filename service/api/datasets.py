@@ -34,9 +34,14 @@ Datasets never pile up:
   deletable (``DELETE /api/datasets/{id}``, 409 while a queued/running/paused job reads it).
 - Covered by retention (``fpscan.service.jobs.lifecycle.apply_dataset_retention``, applied after
   each new upload too).
-- Admitted against the disk: the decoded dataset's bytes must fit the free space less
-  ``disk_reserve_bytes`` less what imports in flight reserved
+- Admitted against the disk: the body's length before it is spooled (inside the data folder,
+  ``fpscan.service.api.spool``), then the decoded dataset's bytes, must fit the free space
+  less ``disk_reserve_bytes`` less what uploads and imports in flight reserved
   (``fpscan.service.formats.untrusted.DiskAdmission``), else 507 before it is written.
+- Imported within its budget: in a child process capped at the memory limit
+  (``fpscan.service.formats.untrusted.import_memory_limit``), decoding at most the decode
+  budget (``fpscan.service.formats.untrusted.hdf5_limit``), each array sized before it is
+  decoded.
 """
 from __future__ import annotations
 
@@ -63,10 +68,11 @@ from fpscan.service.api.models import (
     DatasetInfo,
     Deleted,
 )
+from fpscan.service.api.spool import SpooledUploads, disk_admission
 from fpscan.service.disk import durable_mkdir, fsync_folder, fsync_tree
 from fpscan.service.formats import upload_formats
 from fpscan.service.formats.load_options import check_load_options, load_option_schemas
-from fpscan.service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
+from fpscan.service.formats.untrusted import NotAdmitted, hdf5_limit, import_memory_limit, run_bounded
 from fpscan.service.jobs import lifecycle
 from fpscan.service.jobs.queue import INCOMING
 from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds
@@ -76,7 +82,8 @@ from fpscan.service.storage.usage import usage_for
 log = logging.getLogger("fpscan.api")
 __all__ = ["router", "list_datasets", "list_formats", "upload_dataset", "delete_dataset"]
 
-router = APIRouter(prefix="/api/datasets", tags=["datasets"])
+# the upload's body spooled inside the data folder, admitted by the disk admission first
+router = APIRouter(prefix="/api/datasets", tags=["datasets"], route_class=SpooledUploads)
 
 @router.get("", response_model=list[DatasetInfo], dependencies=[Depends(read_access)])
 def list_datasets(context: Context = Depends(ctx)) -> list[DatasetInfo]:
@@ -114,8 +121,8 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     The form's other fields are the formats' load options (``dt``, ``dx``, ``dy``, ``key``,
     ``axes``, ``wavelength``: each format's own, ``GET /api/formats``; one the chosen format does not
     take is refused with 422). A dataset holds one wavelength's data (``wavelength``; the
-    response's ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the
-    disk."""
+    response's ``wavelength_nm`` says which). 507 when the body (before it is read) or the
+    decoded dataset does not fit the disk, or the body's spool fails."""
     if sound_speed is not None and c is not None and sound_speed.strip() != c.strip():
         raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
     speed = c if sound_speed is None else sound_speed
@@ -167,8 +174,9 @@ upload_dataset.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
 upload_dataset = router.post(
     "", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
     responses={413: {"description": "upload larger than the configured limit"},
-               507: {"description": "the decoded dataset does not fit the free disk (counting the imports in "
-                                    "progress)"}})(upload_dataset)
+               507: {"description": "the body (before it is read) or the decoded dataset does not fit the free "
+                                    "disk (counting the uploads and imports in progress), or spooling the body "
+                                    "into the data folder failed"}})(upload_dataset)
 
 
 def _display_name(name: str | None) -> str | None:
@@ -201,14 +209,6 @@ def _stored(context: Context, dedup_key: str, sha256: str) -> Dataset | None:
     return None
 
 
-def _admission(context: Context) -> DiskAdmission:
-    adm = context.extras.get("disk_admission")
-    if adm is None:
-        adm = context.extras.setdefault("disk_admission", DiskAdmission(context.settings.data_dir,
-                                                                   context.settings.disk_reserve_bytes))
-    return adm
-
-
 def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float | None, dy: float | None,
                   sound_speed: float | None, key: str | None, axes: str | None, force: bool, wavelength: int | None,
                   context: Context) -> Dataset:
@@ -221,12 +221,13 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
     limit = context.settings.upload_limit
     size = 0
     digest = hashlib.sha256()
-    admission = _admission(context)
+    admission = disk_admission(context)
     try:
         # the body's copy is admitted too (its size is known: the form parser has spooled it)
-        refused = admission.reserve(dataset_id, int(file.size or 0))
+        held = int(file.size or 0)
+        refused = admission.reserve(dataset_id, held, what=f"the upload holds {held} bytes")
         if refused:
-            raise HTTPException(507, refused.replace("the dataset decodes to", "the upload holds"))
+            raise HTTPException(507, refused)
         with open(src, "wb") as out:
             while chunk := file.file.read(1 << 20):
                 size += len(chunk)
@@ -257,7 +258,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, context.settings.memory_limit),
                                timeout=context.settings.import_timeout_s, what="the upload",
-                               memory_bytes=context.settings.memory_limit + 2 * 2**30,
+                               memory_bytes=import_memory_limit(context.settings.memory_limit),
                                admit=lambda nbytes: admission.reserve(dataset_id, nbytes))
         except ValueError as exc:
             msg = reason(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")

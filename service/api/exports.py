@@ -10,10 +10,33 @@ beside the job's files once and then served from there (a result never changes; 
 is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
 
+Admission: a request for an export not built yet is counted in first (``context.slots["exports"]``):
+``export_workers`` build at once and four times as many may wait, for a turn or for another
+request's build of the same file; a further request is refused at once with 429 and
+``Retry-After``, so requests for exports never hold more server threads than that (40
+concurrent requests of one export held all of AnyIO's 40 and stalled every other route). Only a
+request that builds takes one of the ``export_workers`` turns. A result's export already built
+is served without either. The exporters of a result volume read it in slabs
+(``fpscan.service.formats.result.read_slabs``), so their memory is bounded by the turns, not by
+the volumes' size or the requests' number; the IPASC export of a scan reads the whole scan
+(``fpscan.driver.scanfile.read_scan``: every A-line as float64, four times the scan file's
+int16 samples), so its memory grows with the scan (a scan is as large as its plan).
+
+Disk: before it writes, a build reserves the most its export may take (:func:`export_bytes`)
+with the disk admission of uploads and imports (``fpscan.service.api.spool.disk_admission``):
+an export that would eat into ``disk_reserve_bytes`` (kept for scans and the job store) is
+refused up front with 507 and the reason. A full disk met while writing anyway (another writer
+filled it) is answered 507 with the free bytes (never 500), logged with the exception's name;
+the writers remove their temporary files and folders, however deep
+(``fpscan.service.disk``), and a crash's leftovers go at the next start-up
+(``fpscan.service.jobs.queue.remove_debris``). Only the server's own files are read and
+served: a source or export that is a symbolic link, or reached through one, is refused (404,
+logged once: ``fpscan.service.api.files.open_own``).
+
 Single flight: one export file is built by one request at a time
 (``fpscan.service.api.single_flight.SingleFlight``, a lock per output path). Requests that
-come while it is built wait for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
-build it once, and every response carries the same bytes (one OME UUID), so a download
+come while it is built (and are counted in) wait for that build and serve its file: 20
+concurrent first requests of a volume's OME-TIFF (``export_workers`` 4: 20 counted in) build it once, and every response carries the same bytes (one OME UUID), so a download
 resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
 is written once for the requests that came while it was being written.
 
@@ -23,6 +46,8 @@ export never leaves a file behind a deleted job.
 """
 from __future__ import annotations
 
+import logging
+import os
 import shutil
 import uuid
 from pathlib import Path
@@ -32,17 +57,22 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from fpscan.service.api.context import Context, ctx, read_access
-from fpscan.service.api.files import HeldFileResponse
+from fpscan.service.api.files import HeldFileResponse, NotOwnFile, check_own
 from fpscan.service.api.jobs import get_job_or_404
+from fpscan.service.api.logcaps import shown
 from fpscan.service.api.models import ID_PATTERN, FormatInfo
 from fpscan.service.api.single_flight import SingleFlight
-from fpscan.service.formats import FORMATS, export_file, export_formats
+from fpscan.service.api.spool import disk_admission
+from fpscan.service.disk import free_bytes, is_disk_full, remove_tree, temp_sibling
+from fpscan.service.formats import FORMATS, Format, export_file, export_formats
 from fpscan.service.formats.result import VOLUME_FILE
 from fpscan.service.jobs import lifecycle
 
-__all__ = ["router", "list_formats", "export", "job_export_source", "EXPORTS_DIR"]
+__all__ = ["router", "list_formats", "export", "job_export_source", "export_bytes", "EXPORTS_DIR"]
 
 router = APIRouter(tags=["formats"])
+
+log = logging.getLogger("fpscan.api")
 
 #: the folder of the data folder where scans' exports are written (a scan's file may grow)
 EXPORTS_DIR = "exports"
@@ -104,7 +134,10 @@ WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volum
                        404: {"description": "no such job, or a format the job does not export (the reason "
                                             "names those it does)"},
                        409: {"description": "the job has no file yet, or its file cannot be exported so"},
-                       507: {"description": "the disk is full"}})
+                       429: {"description": "too many exports being built or waiting (export_workers); retry "
+                                            "after Retry-After seconds"},
+                       507: {"description": "the export does not fit the free disk less disk_reserve_bytes (the "
+                                            "reason says the bytes); free space, then retry"}})
 def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or reconstruction job's id"),
            format: str = PathParam(pattern=r"^[a-z0-9][a-z0-9-]{0,39}$", description="an export format's name "
                                    "(GET /api/formats: those with export_from)"),
@@ -112,7 +145,10 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
     """The job's file (a scan file, or a reconstruction's p0 volume) in the export ``format``
     (``fpscan.service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
     scan, ``ome-tiff`` and ``ome-zarr`` of a volume, the file itself as ``fpscan`` / ``result``);
-    a folder export (OME-Zarr) as a zip of one folder ``<job_id><suffix>``. Supports ``Range``."""
+    a folder export (OME-Zarr) as a zip of one folder ``<job_id><suffix>``. Supports ``Range``.
+    An export not built yet is built within ``export_workers`` turns (429 when that many build
+    and four times as many wait already); 507 when it does not fit the free disk less
+    ``disk_reserve_bytes``."""
     job = get_job_or_404(context, job_id)
     source, src = job_export_source(context, job, wavelength)
     offered = export_formats(source)
@@ -121,30 +157,120 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
     fmt = FORMATS[format]
     name = f"{job_id}{'' if wavelength is None else f'-wavelength_{wavelength}'}{fmt.suffix}"
     gone = f"job {job_id} was deleted meanwhile"
+    root = context.settings.data_dir
     if format == source:  # the file itself
-        return HeldFileResponse(src, gone=gone, media_type=fmt.media_type, filename=name)
+        return HeldFileResponse(src, gone=gone, root=root, media_type=fmt.media_type, filename=name)
     if source == "result":  # a result never changes: its exports are kept beside it
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
     else:  # a scan may grow: written anew
-        out = Path(context.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
-    with _BUILDS.turn(out) as turn:
-        if not (out.exists() if source == "result" else turn.built_meanwhile):
-            try:
-                _write_export(context, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
-            except OSError:
-                with lifecycle.guard(context.store):
-                    if context.store.get(job_id) is None:  # deleted under the build (its folder removed)
-                        _discard(context, out, job)
-                        raise HTTPException(404, f"job {job_id} was deleted while its export was made") from None
-                raise
-            with lifecycle.guard(context.store):  # no deletion between the look and the file kept
-                if context.store.get(job_id) is None:
-                    _discard(context, out, job)
-                    raise HTTPException(404, f"job {job_id} was deleted while its export was made")
-            turn.built()
-        # opened before another build may replace it: each answer serves the file of its build
-        return HeldFileResponse(out, gone=gone, media_type="application/zip" if fmt.folder else fmt.media_type,
+        out = Path(root) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
+
+    def served() -> HeldFileResponse:  # opened before another build may replace it: each answer serves its build's
+        return HeldFileResponse(out, gone=gone, root=root, media_type="application/zip" if fmt.folder else fmt.media_type,
                                 filename=name + (".zip" if fmt.folder else ""))
+
+    if source == "result" and os.path.lexists(out):  # built before, and never rebuilt
+        return served()
+    slots = context.slots["exports"]
+    if not slots.enter():  # counted in before waiting for anything (module docstring)
+        raise HTTPException(429, slots.busy_reason(), headers={"Retry-After": str(slots.retry_after_s)})
+    try:
+        with _BUILDS.turn(out) as turn:
+            if not (os.path.lexists(out) if source == "result" else turn.built_meanwhile):
+                with slots.turn():  # this request builds
+                    _build(context, job, src, out, format, source, gone)
+                turn.built()
+            return served()
+    finally:
+        slots.leave()
+
+
+def export_bytes(src: str | os.PathLike, fmt: Format) -> int:
+    """The most bytes the export ``fmt`` of the HDF5 file ``src`` (a result volume, a scan
+    file) may put on the disk while it is built: every array of ``src`` at 8 bytes an element
+    (float64, the widest any exporter writes: IPASC's pressure; the others write float32),
+    twice for a folder export (the folder and its zip are on the disk at once), + 1 MiB for
+    the files' metadata. From what the datasets declare (``h5py``), nothing read.
+
+    Parameters
+    ----------
+    src : str or os.PathLike
+        The file exported.
+    fmt : fpscan.service.formats.Format
+        The export format.
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Raises
+    ------
+    ValueError
+        ``src`` is not an HDF5 file that opens (``fpscan.driver.scanfile.open_readonly``).
+    """
+    import h5py
+    import numpy as np
+
+    from fpscan.driver.scanfile import open_readonly
+
+    elements = 0
+
+    def count(_name: str, obj: object) -> None:
+        nonlocal elements
+        if isinstance(obj, h5py.Dataset) and obj.shape is not None:
+            elements += int(np.prod(obj.shape, dtype=np.int64))
+
+    with open_readonly(src) as f:
+        f.visititems(count)
+    return elements * 8 * (2 if fmt.folder else 1) + (1 << 20)
+
+
+def _build(context: Context, job: dict, src: Path, out: Path, format: str, source: str, gone: str) -> None:
+    """Build the export ``format`` of the server's own file ``src`` at ``out``: 404 for a
+    source that is not the server's own (``fpscan.service.api.files.check_own``) or a job
+    deleted under the build (what it wrote removed), 409 with the exporter's reason, 507 when
+    the disk admission refuses the export's bytes (:func:`export_bytes`) or on a full disk
+    (nothing left behind: the writers remove their temporaries)."""
+    job_id = job["id"]
+    root = context.settings.data_dir
+    try:
+        check_own(src, root)
+    except NotOwnFile:
+        raise HTTPException(404, "no such file") from None
+    except FileNotFoundError:
+        raise HTTPException(404, gone) from None
+    try:
+        need = export_bytes(src, FORMATS[format])
+    except ValueError as exc:
+        raise HTTPException(409, str(exc)) from None
+    admission, key = disk_admission(context), f"export-{uuid.uuid4().hex}"
+    refused = admission.reserve(key, need, what=f"the {format} export of job {job_id} may take up to {need} bytes")
+    if refused:
+        log.warning("export %s of job %s refused (507) before it was written: %s", format, job_id, refused)
+        raise HTTPException(507, refused)
+    try:  # reserved while it is written; once written, the disk's free space counts it
+        _write_export(context, src, out, format, arcname=f"{job_id}{FORMATS[format].suffix}",
+                      replace=source != "result")
+    except OSError as exc:
+        with lifecycle.guard(context.store):
+            if context.store.get(job_id) is None:  # deleted under the build (its folder removed)
+                _discard(context, out, job)
+                raise HTTPException(404, f"job {job_id} was deleted while its export was made") from None
+        if not is_disk_full(exc):
+            raise
+        free = free_bytes(out.parent)
+        log.warning("export %s of job %s: the disk is full: %s", format, job_id,
+                    shown(f"{type(exc).__name__}: {exc}"))
+        raise HTTPException(507, f"no room for the {format} export of job {job_id} on the data folder's disk "
+                                 f"({'an unknown number of' if free is None else free} bytes free); free space, "
+                                 "then retry (/api/health shows the free bytes)") from None
+    finally:
+        admission.release(key)
+    with lifecycle.guard(context.store):  # no deletion between the look and the file kept
+        if context.store.get(job_id) is None:
+            _discard(context, out, job)
+            raise HTTPException(404, f"job {job_id} was deleted while its export was made")
 
 
 #: the exports' builds: one at a time per output path
@@ -178,12 +304,12 @@ def _write_export(context: Context, src: Path, out: Path, format: str, *, arcnam
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         if FORMATS[format].folder:
-            tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}")
+            tmp = temp_sibling(out)
             try:
                 export_file(src, tmp, format)
                 zip_folder(tmp, out, arcname=arcname)
             finally:
-                shutil.rmtree(tmp, ignore_errors=True)
+                remove_tree(tmp)
         else:
             export_file(src, out, format)
     except ValueError as exc:

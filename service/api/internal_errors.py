@@ -1,5 +1,6 @@
 """The 500 of an unexpected error (:func:`internal_error`) and the ``InternalErrors`` ASGI
-middleware, the outermost of the app's own: no error drops a kept-alive connection, and a
+middleware, the outermost of the app's own but for the browser headers
+(``fpscan.service.api.browser_headers``, which only add headers): no error drops a kept-alive connection, and a
 client gone mid-request (:func:`client_gone`) is no internal error."""
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ log = logging.getLogger("fpscan.api")
 
 
 def internal_error(scope: Scope, exc: BaseException) -> JSONResponse:
-    """The 500 of an unexpected error: logged with a reference, the client told only the reference.
+    """The 500 of an unexpected error: logged with a reference, the exception's name and message
+    (capped, first in the line) and its traceback; the client told only the reference.
 
     Parameters
     ----------
@@ -32,16 +34,17 @@ def internal_error(scope: Scope, exc: BaseException) -> JSONResponse:
         Status 500, ``{"detail": "internal error (reference <8 hex>)"}``.
     """
     ref = uuid.uuid4().hex[:8]
-    log.error("internal error ref=%s %s %s", ref, scope.get("method"), shown(scope.get("path", "")), exc_info=exc)
+    log.error("internal error ref=%s %s %s: %s", ref, scope.get("method"), shown(scope.get("path", "")),
+              shown(f"{type(exc).__name__}: {exc}"), exc_info=exc)
     return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
 
 class InternalErrors:
-    """ASGI middleware, the outermost of the app's own: an error no handler took becomes a
-    500 answer (:func:`internal_error`) and goes no further. Starlette's own last handler
-    re-raises after answering, and uvicorn then closes the client's kept-alive connection
-    and logs the traceback a second time; here the connection stays open for the client's
-    next request. An error after the answer started is logged and the connection closed
+    """ASGI middleware, the outermost of the app's own but for the browser headers: an error
+    no handler took becomes a 500 answer (:func:`internal_error`) and goes no further.
+    Starlette's own last handler re-raises after answering, and uvicorn then closes the
+    client's kept-alive connection and logs the traceback a second time; here the connection
+    stays open for the client's next request. An error after the answer started is logged and the connection closed
     (there is no way to tell the client).
 
     A client gone (its disconnect received, its connection reset, a send to a closed

@@ -24,11 +24,14 @@ from __future__ import annotations
 import asyncio
 from collections import deque
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from fpscan.service.settings import Settings
+
+if TYPE_CHECKING:
+    from fpscan.service.api.access import TokenFailures
 
 __all__ = ["STARTS_PER_ITERATION", "HEALTH_PATH", "RequestTurns", "HealthLane"]
 
@@ -132,6 +135,12 @@ class HealthLane:
         The service's settings (the access rules).
     document : callable
         ``document(context)``: an awaitable of the ``Health`` model, given the app's ``Context``.
+    failures : TokenFailures or None, optional
+        The access gate's count of wrong tokens per address
+        (:class:`fpscan.service.api.access.TokenFailures`): a wrong token from an address that
+        must wait is a refusal here too, passed on to the gate, which holds it until the wait is
+        over and answers 429; the right token is answered here at once, from every address;
+        default None: a count of its own.
 
     Attributes
     ----------
@@ -143,12 +152,13 @@ class HealthLane:
         ``gate(scope) -> (status, reason) or None``, the access gate's rules.
     """
 
-    def __init__(self, app: ASGIApp, settings: Settings, document: Callable[[Any], Awaitable[Any]]) -> None:
+    def __init__(self, app: ASGIApp, settings: Settings, document: Callable[[Any], Awaitable[Any]],
+                 failures: TokenFailures | None = None) -> None:
         from fpscan.service.api.access import AccessGate
 
         self.app = app
         self.document = document
-        self.gate = AccessGate(app, settings).refusal
+        self.gate = AccessGate(app, settings, failures=failures).refusal
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if (scope["type"] != "http" or scope.get("path") != HEALTH_PATH or scope.get("method") != "GET"

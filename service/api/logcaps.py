@@ -10,7 +10,8 @@ in 1.1 s). Here, as Jupyter Server truncates its request log:
 - :class:`RefusalLog`: refusals are logged at most one line per client address per
   ``interval_s`` (the first at once; the next line says how many were not written since);
 - :class:`CappedRecords`: a logging filter for the server's log handlers that cuts any record
-  to :data:`RECORD_MAX` characters, its traceback included (a backstop for whatever else
+  to :data:`RECORD_MAX` characters, its traceback included, keeping the traceback's last line
+  (the exception's name and message: what a reader of the log looks for first) (a backstop for whatever else
   quotes a request: a library's message, an exception's text) and writes a message that uvicorn's connection
   logger repeats (its "Invalid HTTP request received." comes once per bad request) at most
   once per ``interval_s``, with the count of those left out;
@@ -176,7 +177,8 @@ class RefusalLog:
 
 class CappedRecords(logging.Filter):
     """A handler filter: each record's message, with the traceback it carries (``exc_info``,
-    ``stack_info``: folded into the message), cut to ``limit`` characters (its length said), and a message repeated by one of ``repeat_loggers`` written at most once per
+    ``stack_info``: folded into the message), cut to ``limit`` characters (its length said; a
+    traceback cut keeps its last line, the exception's name and message), and a message repeated by one of ``repeat_loggers`` written at most once per
     ``interval_s`` (the next one says how many were left out). Records of level ERROR and
     above always pass (cut, never dropped).
 
@@ -232,7 +234,9 @@ class CappedRecords(logging.Filter):
             record.exc_info, record.exc_text, record.stack_info = None, None, None
             changed = True
         if len(message) > self.limit:
-            message = shown(message, self.limit)
+            # a traceback cut keeps its last line: the exception's name and message (capped)
+            last = "\n" + shown(trace.rstrip().rsplit("\n", 1)[-1]) if trace else ""
+            message = shown(message, max(0, self.limit - len(last))) + last
             changed = True
         if changed:
             record.msg, record.args = message, None

@@ -10,7 +10,7 @@ from fastapi.responses import FileResponse
 from pydantic import ValidationError
 
 from fpscan.service.api.context import Context, ctx, read_access, reason, require_token
-from fpscan.service.api.files import HeldFileResponse
+from fpscan.service.api.files import HeldFileResponse, NotOwnFile, check_own, read_own
 from fpscan.service.api.jobs import get_job_or_404, job_view
 from fpscan.service.api.models import (
     ID_PATTERN,
@@ -415,11 +415,10 @@ def _free_bytes(context: Context) -> int | None:
     """Free bytes of the data folder's disk for a result (None when unknown): less the
     reserve an upload must leave (``disk_reserve_bytes``) and the job database's reserve
     while it is spent."""
-    import shutil
+    from fpscan.service.disk import free_bytes
 
-    try:
-        free = shutil.disk_usage(context.settings.data_dir).free
-    except OSError:
+    free = free_bytes(context.settings.data_dir)
+    if free is None:
         return None
     spent = context.store.reserve_bytes if context.store.reserve_spent is not None else 0
     return max(0, free - int(context.settings.disk_reserve_bytes) - spent)
@@ -514,7 +513,8 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
     path = volume_dir(context, job_id, wavelength) / VOLUME_FILE
-    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", media_type="application/x-hdf5",
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", root=context.settings.data_dir,
+                            media_type="application/x-hdf5",
                             filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
 
@@ -529,7 +529,7 @@ def unmix_h5(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileRe
     path = result_dir(context, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
-    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile",
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", root=context.settings.data_dir,
                             media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
 
 
@@ -539,10 +539,13 @@ def unmix_h5(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileRe
 def so2_png(job_id: str = JobId, context: Context = Depends(ctx)) -> Response:
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
     colour bar 0..100 %, brightness from THb, background black (``fpscan.service.spectral.render_so2_png``)."""
-    path = result_dir(context, job_id) / "so2.png"
-    if not path.exists():
-        raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
-    return Response(path.read_bytes(), media_type="image/png")
+    try:
+        png = read_own(result_dir(context, job_id) / "so2.png", context.settings.data_dir)
+    except NotOwnFile:
+        raise HTTPException(404, "no such file") from None
+    except FileNotFoundError:
+        raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')") from None
+    return Response(png, media_type="image/png")
 
 
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
@@ -551,10 +554,13 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
             context: Context = Depends(ctx)) -> Response:
     """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
     ``?wavelength=k`` as for the volume."""
-    path = volume_dir(context, job_id, wavelength) / mip_file(plane)
-    if not path.exists():
-        raise HTTPException(404, f"a 2-D image has no {plane} MIP")
-    return Response(path.read_bytes(), media_type="image/png")
+    try:
+        png = read_own(volume_dir(context, job_id, wavelength) / mip_file(plane), context.settings.data_dir)
+    except NotOwnFile:
+        raise HTTPException(404, "no such file") from None
+    except FileNotFoundError:
+        raise HTTPException(404, f"a 2-D image has no {plane} MIP") from None
+    return Response(png, media_type="image/png")
 
 
 @router.get("/{job_id}/slice.png", dependencies=[Depends(read_access)], response_class=Response,
@@ -567,7 +573,9 @@ def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, des
     from fpscan.service.pictures.render import render_result_slice
 
     try:
-        png = render_result_slice(result_dir(context, job_id) / VOLUME_FILE, index)
+        png = render_result_slice(check_own(result_dir(context, job_id) / VOLUME_FILE, context.settings.data_dir), index)
+    except NotOwnFile:
+        raise HTTPException(404, "no such file") from None
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     return Response(png, media_type="image/png")

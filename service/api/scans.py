@@ -144,7 +144,7 @@ def scan_file(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileR
     """The scan file (HDF5, ``fpscan.driver.scanfile`` layout); supports ``Range``."""
     # the file as it is now (a running scan's grows): its size when opened, those bytes
     return HeldFileResponse(scan_file_path(context, job_id), gone=f"scan {job_id} was deleted meanwhile",
-                            media_type="application/x-hdf5", filename=f"{job_id}.h5")
+                            root=context.settings.data_dir, media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
 @router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])

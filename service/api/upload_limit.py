@@ -14,7 +14,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from fpscan.service.api.context import Slots
 from fpscan.service.api.logcaps import shown
 
-__all__ = ["MIN_BODY_RATE", "UploadLimit"]
+__all__ = ["MIN_BODY_RATE", "MULTIPART_ALLOWANCE", "UploadLimit"]
 
 log = logging.getLogger("fpscan.api")
 
@@ -22,6 +22,9 @@ log = logging.getLogger("fpscan.api")
 #: send (``Settings.body_min_rate``, whose default this is): a trickle would hold an upload
 #: or plan slot, or a connection, for hours.
 MIN_BODY_RATE = 100 * 1024
+#: Bytes of multipart framing an upload's body may hold besides its file (on top of the
+#: upload limit).
+MULTIPART_ALLOWANCE = 1_000_000
 
 
 class UploadLimit:
@@ -108,7 +111,7 @@ class UploadLimit:
             return await self.app(scope, receive, send)
         key = (scope.get("method", ""), scope.get("path", "").rstrip("/"))
         if key == ("POST", "/api/datasets"):
-            limit = self.upload_limit + 1_000_000
+            limit = self.upload_limit + MULTIPART_ALLOWANCE
         else:
             limit = self.json_limit if key in self.PLAN_ROUTES else self.request_json_limit
         if not _has_body(scope):  # a GET, an event stream: nothing to time (its answer may last hours)

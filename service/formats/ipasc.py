@@ -41,6 +41,7 @@ from h5py import h5d, h5g, h5s, h5t
 from fpscan.constants import C_DEFAULT
 from fpscan.driver.scanfile import ScanData, read_scan
 from fpscan.physics.axes import centred_axis
+from fpscan.service.disk import file_replaced
 from fpscan.service.formats.load_options import WavelengthChoice
 from fpscan.service.formats.registry import Format, Source
 from fpscan.service.recon.dataset import PointDataset, check_wavelength_index
@@ -147,16 +148,9 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     if scan.n_points == 0:
         raise ValueError("the scan has no completed points (at every wavelength) to export")
     out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    # unique per call: concurrent exports to the same target never share a temporary
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{_uuid.uuid4().hex[:12]}.tmp")
-    try:
-        with h5py.File(tmp, "w") as f:
-            _write_ipasc(f, scan, dtype, data_uuid)
-        os.replace(tmp, out_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    # a temporary sibling unique per call (concurrent exports to one target never share it), renamed over out_path
+    with file_replaced(out_path) as tmp, h5py.File(tmp, "w") as f:
+        _write_ipasc(f, scan, dtype, data_uuid)
     return out_path
 
 

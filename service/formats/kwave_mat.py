@@ -5,14 +5,24 @@ Two containers, one format (sniffed from the content, never the suffix):
 
 - **MAT v5** (MATLAB's ``-v7`` default, zlib-compressed, and ``-v6``, uncompressed; Octave
   writes both): a 128-byte text header (``MATLAB 5.0 MAT-file``), then one data element
-  per variable. Read with ``scipy.io.loadmat`` after this module has inflated every
-  compressed element itself, bounded: at most ``max_bytes`` decoded in all and at most
-  ``fpscan.service.formats.untrusted.MAX_RATIO`` times the bytes stored (+ 1 MiB), the rule every
-  HDF5 input obeys, so a zlib bomb is refused before a byte of it is decoded past that.
+  per variable. Read with ``scipy.io.loadmat`` after this module has walked the file
+  element by element under a running byte budget, before scipy decodes anything: every
+  compressed element inflated, nested ones too (a compressed element whose content is
+  compressed again), no further than asked and each element's bytes counted before they are
+  inflated — all layers together at most ``fpscan.service.formats.untrusted.MAX_RATIO``
+  times the file's bytes (+ 1 MiB), the rule every HDF5 input obeys — and every variable
+  read sized from what it declares (each field of a struct or cell, nested or not: its
+  elements × its class's size), the uncompressed variables and the arrays read together at
+  most ``max_bytes``. A zlib bomb, however it is nested, is refused before its bytes are
+  decoded. The variables are held once, uncompressed, in one buffer written as they are
+  read, which scipy then reads; a variable declaring more than 64 dimensions is refused as
+  corrupt (k-Wave's have at most 4).
 - **MAT v7.3** (``save -v7.3``): HDF5 behind a 512-byte text header (``MATLAB 7.3
   MAT-file``). The registry opens it past the header and checks it like every HDF5 input
   (``fpscan.service.formats.untrusted.check_hdf5_file``: no external links or storage, no virtual
-  datasets, no dataset declaring more than it stores or than ``max_bytes``); here it is
+  datasets, no dataset declaring more than it stores, none nor all together more than
+  ``max_bytes``), and the variables read are sized from what their datasets declare, every
+  struct field and each link to it counted, against ``max_bytes`` before any is read; here it is
   read with h5py as MATLAB lays it out: each variable a dataset (or a group for a
   struct) with a ``MATLAB_class`` attribute, stored transposed (HDF5's row-major shape is
   MATLAB's column-major shape reversed), ``MATLAB_empty`` for empty arrays.
@@ -54,6 +64,7 @@ from __future__ import annotations
 import io
 import struct
 import zlib
+from collections.abc import Iterator
 from typing import Any, BinaryIO
 
 import numpy as np
@@ -70,7 +81,7 @@ __all__ = ["FORMAT", "sniff", "load", "V5_TEXT", "V73_TEXT", "read_variables"]
 V5_TEXT = b"MATLAB 5.0 MAT-file"
 #: the start of a MAT v7.3 file's text header (HDF5 behind 512 bytes)
 V73_TEXT = b"MATLAB 7.3 MAT-file"
-_MI_MATRIX, _MI_COMPRESSED = 14, 15
+_MI_INT8, _MI_INT32, _MI_MATRIX, _MI_COMPRESSED = 1, 5, 14, 15
 #: the variables this format looks at besides the data (the rest of a file is not decoded)
 _NAMES = ("dt", "dx", "dy", "dz", "Nt", "c0", "c", "sound_speed", "kgrid", "medium", "sensor", "sensor_mask",
           "p0", "p0_true", "source")
@@ -99,10 +110,260 @@ def sniff(source: Source) -> bool:
 
 
 # ----------------------------------------------------------------------------- MAT v5
-def _inflated_v5(fh: BinaryIO, max_bytes: int) -> bytes:
-    """The MAT v5 file open in ``fh`` with every compressed element inflated (header and
-    elements as an uncompressed v5 file), decoding at most ``max_bytes`` in all and at most
-    ``MAX_RATIO`` times the bytes stored (+ ``SMALL_BYTES``). Raises ValueError."""
+#: MAT v5 classes (the ``mxCLASS`` of an array's flags; MathWorks, "MAT-File Format")
+_MX_CELL, _MX_STRUCT, _MX_OBJECT, _MX_CHAR, _MX_SPARSE, _MX_OPAQUE = 1, 2, 3, 4, 5, 17
+#: bytes per element of each numeric class as ``loadmat(mat_dtype=True)`` returns it
+_MX_ITEMSIZE = {6: 8, 7: 4, 8: 1, 9: 1, 10: 2, 11: 2, 12: 4, 13: 4, 14: 8, 15: 8}
+_MX_NAMES = {1: "cell", 2: "struct", 3: "object", 4: "char", 5: "sparse", 6: "double", 7: "single", 8: "int8",
+             9: "uint8", 10: "int16", 11: "uint16", 12: "int32", 13: "uint32", 14: "int64", 15: "uint64",
+             16: "function_handle", 17: "opaque"}
+#: what one decoded array costs besides its elements: its Python object and, for a cell or
+#: struct, its slot in the parent (counted per element of a cell or struct array too)
+_OBJECT_BYTES = 256
+#: a char array decodes to 4 bytes a character (numpy ``U1``) and is joined into strings: 8
+_CHAR_BYTES = 8
+#: the deepest nesting of compressed layers and of arrays in arrays that is read
+_MAX_DEPTH = 16
+#: compressed bytes read at once from a layer below
+_CHUNK = 1 << 16
+#: bytes copied at once into the uncompressed stream (a variable's body, read or inflated)
+_COPY_CHUNK = 1 << 20
+#: the most dimensions a variable may declare: k-Wave's arrays have at most 4 (a 3-D grid and
+#: time), MATLAB's own data rarely more than a handful; 64 keeps any plausible array while a
+#: hostile one of 100 000 dimensions (4 bytes each, a few kB once compressed) is refused before
+#: their product is formed (each a Python int multiplication: quadratic in their number)
+_MAX_DIMS = 64
+
+
+class _Budget:
+    """The running bytes budget of one MAT v5 import: ``inflate`` is what every zlib layer
+    together may still produce, ``hold`` what the import may still hold decoded."""
+
+    def __init__(self, inflate: int, hold: int, stored: int, max_bytes: int):
+        self.inflate, self.hold, self.stored, self.max_bytes = inflate, hold, stored, max_bytes
+
+    def inflated(self, n: int) -> None:
+        """Before ``n`` more bytes come out of a compressed layer."""
+        from fpscan.service.formats.untrusted import MAX_RATIO
+
+        self.inflate -= n
+        if self.inflate < 0:
+            raise ValueError(f"a compressed variable of the MAT-file inflates beyond {self._ratio_limit()} bytes "
+                             f"through its compressed layers (the file stores {self.stored}: more than "
+                             f"{MAX_RATIO}:1, or above the size limit; refused)")
+
+    def _ratio_limit(self) -> int:
+        from fpscan.service.formats.untrusted import MAX_RATIO, SMALL_BYTES
+
+        return min(self.max_bytes, MAX_RATIO * self.stored + SMALL_BYTES)
+
+    def held(self, n: int, what: str) -> None:
+        """Before ``n`` more bytes are held decoded (``what`` for the reason)."""
+        self.hold -= n
+        if self.hold < 0:
+            raise ValueError(f"the MAT-file's {what} need more than the import's limit of {self.max_bytes} bytes "
+                             "decoded (refused before decoding)")
+
+
+class _Layer:
+    """The bytes of a MAT v5 element stream: the file itself (``stored`` None) or the zlib
+    stream of a compressed element (``stored`` compressed bytes of the layer ``below``),
+    inflated no further than asked (``zlib.decompressobj().decompress(data, max_length)``)."""
+
+    def __init__(self, below: Any, stored: int | None = None):
+        self.below, self.left = below, stored
+        self.inflater = zlib.decompressobj() if stored is not None else None
+        self.tail = b""
+
+    def read(self, n: int) -> bytes:
+        """Up to ``n`` bytes (fewer only at the end of the stream)."""
+        if self.inflater is None:
+            return self.below.read(n)
+        out: list[bytes] = []
+        need = n
+        while need > 0 and not self.inflater.eof:
+            data = self.tail
+            if not data:
+                if not self.left:
+                    break
+                data = self.below.read(min(_CHUNK, self.left))
+                if not data:
+                    raise ValueError("the MAT-file is truncated (a compressed variable is cut)")
+                self.left -= len(data)
+            try:
+                chunk = self.inflater.decompress(data, need)
+            except zlib.error:
+                raise ValueError("the MAT-file is corrupt (a compressed variable does not inflate)") from None
+            self.tail = self.inflater.unconsumed_tail
+            out.append(chunk)
+            need -= len(chunk)
+        return b"".join(out)
+
+    def copy_to(self, sink: io.BytesIO, n: int, what: str) -> None:
+        """Write the next ``n`` bytes into ``sink``, :data:`_COPY_CHUNK` at a time (no copy
+        of the whole is made). Raises ValueError when the stream ends first."""
+        left = n
+        while left > 0:
+            data = self.read(min(left, _COPY_CHUNK))
+            if not data:
+                raise ValueError(f"the MAT-file is truncated ({what} declares {n} bytes, {n - left} are there)")
+            sink.write(data)
+            left -= len(data)
+
+    def skip(self, n: int) -> None:
+        """Past ``n`` bytes, in chunks (a compressed layer's are inflated and dropped)."""
+        while n > 0:
+            got = len(self.read(min(n, 1 << 20)))
+            if not got:
+                raise ValueError("the MAT-file is truncated (an element is cut)")
+            n -= got
+
+    def close(self) -> None:
+        """Past the rest of this layer's compressed bytes in the layer below (not inflated)."""
+        if self.left:
+            self.below.skip(self.left)
+            self.left = 0
+
+
+def _elements(layer: _Layer, endian: str, budget: _Budget, out: io.BytesIO, sizes: list[tuple[str, str, int]],
+              depth: int = 0) -> None:
+    """Every element of ``layer`` (the file, or a compressed element's stream): each
+    variable (``miMATRIX``) written to ``out`` uncompressed, as it is read, with its name, class and
+    decoded size (:func:`_matrix_size`, read in ``out`` itself) in ``sizes``; each compressed element inflated in
+    turn, however deeply nested, its bytes counted (``budget.inflated``) before they are
+    inflated and the variables' bytes (``budget.held``) before they are read."""
+    inflating = depth > 0
+    while True:
+        tag = layer.read(8)
+        if not tag:
+            return
+        if len(tag) < 8:
+            raise ValueError("the MAT-file is truncated (an element's tag is cut)")
+        mtype, nbytes = struct.unpack(endian + "II", tag)
+        if mtype >> 16:  # a small data element (its data inside the tag): no variable
+            if inflating:
+                budget.inflated(8)
+            continue
+        if inflating:
+            budget.inflated(8 + nbytes)
+        if mtype == _MI_COMPRESSED:
+            if depth >= _MAX_DEPTH:
+                raise ValueError(f"the MAT-file nests compressed elements more than {_MAX_DEPTH} deep (refused)")
+            inner = _Layer(layer, nbytes)
+            _elements(inner, endian, budget, out, sizes, depth + 1)
+            inner.close()
+        elif mtype == _MI_MATRIX:
+            budget.held(8 + nbytes, "variables")
+            start = out.tell() + 8
+            out.write(tag)
+            layer.copy_to(out, nbytes, "a variable")
+            sizes.append(_sized(out, start, nbytes, endian, budget.max_bytes))
+        else:  # any other top-level element is not a variable: skipped
+            layer.skip(nbytes)
+
+
+def _sized(out: io.BytesIO, start: int, nbytes: int, endian: str, cap: int) -> tuple[str, str, int]:
+    """:func:`_matrix_size` of the variable body at ``start`` of ``out`` (``nbytes`` long), read
+    in place: the view of ``out`` is released before ``out`` grows again."""
+    with out.getbuffer() as whole:
+        return _matrix_size(whole[start:start + nbytes], endian, 0, cap)
+
+
+def _sub_elements(buf: memoryview, endian: str) -> Iterator[tuple[int, memoryview]]:
+    """The data elements packed in ``buf`` (a variable's body), one by one: (type, data),
+    small (data in the tag) or not (8-byte aligned). Raises ValueError for one cut short."""
+    pos, end = 0, len(buf)
+    while pos + 8 <= end:
+        mtype, nbytes = struct.unpack_from(endian + "II", buf, pos)
+        if mtype >> 16:  # small: the byte count in the upper half, the data in the tag's last 4 bytes
+            small = mtype >> 16
+            if small > 4:
+                raise ValueError("the MAT-file is corrupt (a small element holds more than 4 bytes)")
+            yield mtype & 0xFFFF, buf[pos + 4:pos + 4 + small]
+            pos += 8
+            continue
+        if pos + 8 + nbytes > end:
+            raise ValueError("the MAT-file is corrupt (an element runs past its variable)")
+        yield mtype, buf[pos + 8:pos + 8 + nbytes]
+        pos += 8 + nbytes + (-nbytes % 8)
+
+
+def _declared(cls: int, flags: int, subs: Iterator[tuple[int, memoryview]], stored: int,
+              endian: str, cap: int) -> tuple[str, int, int]:
+    """A variable's name, its number of elements (saturated at ``cap + 1``) and what it decodes
+    to besides its nested arrays (:func:`_matrix_size`), from its dimensions and name (the next
+    two of ``subs``; none in an opaque object's, whose ``stored`` bytes count twice). More than
+    :data:`_MAX_DIMS` dimensions are refused."""
+    if cls == _MX_OPAQUE:  # no dimensions or name: three strings and the object's data
+        return "", 1, _OBJECT_BYTES + 2 * stored
+    dims, named = next(subs, None), next(subs, None)
+    if dims is None or named is None or dims[0] != _MI_INT32 or len(dims[1]) % 4:
+        raise ValueError("the MAT-file is corrupt (a variable without its dimensions and name)")
+    n_dims = len(dims[1]) // 4
+    if n_dims > _MAX_DIMS:
+        raise ValueError(f"the MAT-file is corrupt (a variable declares {n_dims} dimensions; at most {_MAX_DIMS} "
+                         "are read)")
+    n = 1
+    for d in struct.unpack_from(f"{endian}{n_dims}i", dims[1]):
+        if d < 0:
+            raise ValueError("the MAT-file is corrupt (a negative dimension)")
+        n = min(n * d, cap + 1)  # saturated: beyond the cap the size is refused anyway
+    name = bytes(named[1]).split(b"\0", 1)[0].decode("latin-1")
+    if cls in _MX_ITEMSIZE:
+        per = 1 if flags & 0x200 else _MX_ITEMSIZE[cls]  # logical: bool
+        return name, n, _OBJECT_BYTES + n * per * (2 if flags & 0x800 else 1)
+    if cls == _MX_CHAR:
+        return name, n, _OBJECT_BYTES + n * _CHAR_BYTES
+    if cls in (_MX_CELL, _MX_STRUCT, _MX_OBJECT):  # a slot per element; per field once the names are read
+        return name, n, _OBJECT_BYTES + n * (8 + _OBJECT_BYTES)
+    return name, n, _OBJECT_BYTES + 2 * stored  # sparse, function handles: their parts as stored, twice over
+
+
+def _matrix_size(body: memoryview, endian: str, depth: int, cap: int) -> tuple[str, str, int]:
+    """A variable's (``miMATRIX`` body's) name, class and the bytes it decodes to in
+    ``loadmat(mat_dtype=True, simplify_cells=True)``, from what it declares, before any of
+    it is decoded: numeric arrays their elements × their class's size (× 2 complex), char
+    arrays :data:`_CHAR_BYTES` a character, cell and struct arrays a slot per element (and
+    field) and their elements' own sizes, nested however deep; every array
+    :data:`_OBJECT_BYTES` more. The walk stops once the size passes ``cap`` (then
+    ``cap + 1``): it holds nothing per element. A compressed element inside a variable (not
+    something MATLAB writes) is refused. Raises ValueError."""
+    if depth > _MAX_DEPTH:
+        raise ValueError(f"the MAT-file nests arrays in arrays more than {_MAX_DEPTH} deep (refused)")
+    subs = _sub_elements(body, endian)
+    first = next(subs, None)
+    if first is None or len(first[1]) < 8:
+        raise ValueError("the MAT-file is corrupt (a variable without its array flags)")
+    flags = struct.unpack_from(endian + "I", first[1])[0]
+    cls = flags & 0xFF
+    label = _MX_NAMES.get(cls, str(cls))
+    name, n, decoded = _declared(cls, flags, subs, len(body), endian, cap)
+    fields, length = 1, 0
+    for mtype, data in subs:
+        if decoded > cap:
+            break
+        if mtype == _MI_COMPRESSED:
+            raise ValueError("the MAT-file holds a compressed element inside a variable (MATLAB never writes one; "
+                             "refused)")
+        if mtype == _MI_MATRIX:
+            decoded += _matrix_size(data, endian, depth + 1, cap - decoded)[2]
+        elif cls in (_MX_STRUCT, _MX_OBJECT) and mtype == _MI_INT32 and not length and len(data) >= 4:
+            length = struct.unpack_from(endian + "i", data)[0]  # the field names' length, then the names
+        elif cls in (_MX_STRUCT, _MX_OBJECT) and mtype == _MI_INT8 and length > 0 and fields == 1:
+            fields = max(len(data) // length, 1)
+            decoded += n * (fields - 1) * (8 + _OBJECT_BYTES)
+    return name, label, min(decoded, cap + 1)
+
+
+def _inflated_v5(fh: BinaryIO, max_bytes: int) -> tuple[io.BytesIO, list[tuple[str, str, int]], _Budget]:
+    """The MAT v5 file open in ``fh`` as an uncompressed v5 file (header and variables,
+    every compressed element inflated, nested ones too) in one ``io.BytesIO``, written as the
+    elements are read (held once: no list of parts joined), each variable's (name, class,
+    decoded bytes) and what is left of the budget. Inflates at most ``MAX_RATIO`` times the
+    file's bytes (+ ``SMALL_BYTES``) through all layers together and holds at most
+    ``max_bytes``, each element's bytes counted before it is inflated. Raises ValueError."""
+    import os
+
     from fpscan.service.formats.untrusted import MAX_RATIO, SMALL_BYTES
 
     fh.seek(0)
@@ -110,70 +371,41 @@ def _inflated_v5(fh: BinaryIO, max_bytes: int) -> bytes:
     if len(header) < 128:
         raise ValueError("the MAT-file is truncated (no complete header)")
     endian = "<" if header[126:128] == b"IM" else ">"
-    out = [header]
-    decoded = stored = 0
-    while True:
-        tag = fh.read(8)
-        if not tag:
-            break
-        if len(tag) < 8:
-            raise ValueError("the MAT-file is truncated (an element's tag is cut)")
-        mtype, nbytes = struct.unpack(endian + "II", tag)
-        if mtype >> 16:  # a small data element (its data inside the tag): no variable
-            continue
-        body = fh.read(nbytes)
-        if len(body) < nbytes:
-            raise ValueError(f"the MAT-file is truncated (an element declares {nbytes} bytes, {len(body)} are there)")
-        stored += 8 + nbytes
-        if mtype == _MI_COMPRESSED:
-            limit = min(max_bytes - decoded, MAX_RATIO * stored + SMALL_BYTES - decoded)
-            inflater = zlib.decompressobj()
-            try:
-                element = inflater.decompress(body, max(limit, 0) + 1)
-            except zlib.error:
-                raise ValueError("the MAT-file is corrupt (a compressed variable does not inflate)") from None
-            if len(element) > limit or inflater.unconsumed_tail:
-                raise ValueError(f"a compressed variable of the MAT-file inflates beyond {max(limit, 0)} bytes "
-                                 f"(the file stores {stored}: more than {MAX_RATIO}:1, or above the size limit; "
-                                 "refused)")
-            decoded += len(element)
-            out.append(element)
-        elif mtype == _MI_MATRIX:
-            decoded += 8 + nbytes
-            if decoded > max_bytes:
-                raise ValueError(f"the MAT-file's variables declare more than the limit of {max_bytes} bytes")
-            out.append(tag + body)
-        # any other top-level element is not a variable: skipped
-    return b"".join(out)
+    stored = os.fstat(fh.fileno()).st_size
+    budget = _Budget(min(max_bytes, MAX_RATIO * stored + SMALL_BYTES), max_bytes, stored, max_bytes)
+    out = io.BytesIO()
+    out.write(header)
+    sizes: list[tuple[str, str, int]] = []
+    _elements(_Layer(fh), endian, budget, out, sizes)
+    out.seek(0)
+    return out, sizes, budget
 
 
-def _v5_variables(fh: BinaryIO, names: set[str], max_bytes: int) -> tuple[dict[str, Any], list[str]]:
-    """The variables ``names`` of the MAT v5 file in ``fh`` (scipy's ``simplify_cells``
-    form: arrays squeezed, structs as dicts) that are numeric, logical, char or structs,
-    and every variable's name. Raises ValueError."""
+def _v5_variables(fh: BinaryIO, names: set[str] | None, max_bytes: int,
+                  unless: str | None = None) -> tuple[dict[str, Any], list[str]]:
+    """The variables ``names`` (None: every one; every one too when the file has no variable
+    ``unless``) of the MAT v5 file in ``fh`` (scipy's ``simplify_cells`` form: arrays
+    squeezed, structs as dicts) that are numeric, logical, char or structs, and every
+    variable's name. Their decoded bytes (:func:`_matrix_size`) are counted against what
+    is left of ``max_bytes`` before ``scipy.io.loadmat`` decodes them. Raises ValueError."""
     import scipy.io
 
-    stream = io.BytesIO(_inflated_v5(fh, max_bytes))
-    try:
-        listed = scipy.io.whosmat(stream)
-    except Exception as exc:  # scipy raises many kinds on a damaged file
-        raise ValueError(f"the MAT-file is not readable ({type(exc).__name__})") from None
-    wanted = []
-    for name, shape, cls in listed:
-        if name not in names or cls not in (_NUMERIC | {"char", "struct"}):
-            continue
-        if cls in _NUMERIC and int(np.prod(shape, dtype=object)) * 8 > max_bytes:
-            raise ValueError(f"variable {name!r} declares {tuple(shape)} elements, more than the limit of "
-                             f"{max_bytes} bytes")
-        wanted.append(name)
+    stream, sizes, budget = _inflated_v5(fh, max_bytes)
+    listed = [n for n, _, _ in sizes]
+    readable = {n for n, cls, _ in sizes if cls in _NUMERIC | {"char", "struct"}}
+    if names is None or (unless is not None and unless not in readable):
+        names = set(listed)
+    wanted = sorted(readable & names)
     if not wanted:
-        return {}, [n for n, _, _ in listed]
-    stream.seek(0)
+        return {}, listed
+    budget.held(sum(d for n, _, d in sizes if n in wanted), "variables " + ", ".join(wanted))
     try:
         got = scipy.io.loadmat(stream, variable_names=wanted, simplify_cells=True, mat_dtype=True)
-    except Exception as exc:
+    except MemoryError:
+        raise
+    except Exception as exc:  # scipy raises many kinds on a damaged file
         raise ValueError(f"the MAT-file is not readable ({type(exc).__name__})") from None
-    return {k: v for k, v in got.items() if not k.startswith("__")}, [n for n, _, _ in listed]
+    return {k: v for k, v in got.items() if not k.startswith("__")}, listed
 
 
 # --------------------------------------------------------------------------- MAT v7.3
@@ -203,11 +435,54 @@ def _h5_value(obj: Any, depth: int = 0) -> Any:
     return None
 
 
-def _h5_variables(f: Any, names: set[str]) -> tuple[dict[str, Any], list[str]]:
+#: the most arrays and struct fields of a MAT v7.3 file's variables that are read
+_MAX_H5_OBJECTS = 100_000
+
+
+def _h5_size(obj: Any, seen: list[int], depth: int = 0) -> int:
+    """The bytes :func:`_h5_value` would decode ``obj`` to, from what its datasets declare
+    (shape × type), before any is read: every field of a struct, nested or not, each link
+    followed as :func:`_h5_value` follows it (a dataset linked twice counts twice), every
+    array :data:`_OBJECT_BYTES` more, a char array :data:`_CHAR_BYTES` a character, a complex
+    one twice. ``seen[0]`` counts the objects visited (at most :data:`_MAX_H5_OBJECTS`, else
+    ValueError)."""
+    import h5py
+
+    seen[0] += 1
+    if seen[0] > _MAX_H5_OBJECTS:
+        raise ValueError(f"the MAT-file's variables hold more than {_MAX_H5_OBJECTS} arrays and struct fields "
+                         "(refused)")
+    cls = obj.attrs.get("MATLAB_class")
+    cls = cls.decode() if isinstance(cls, bytes) else str(cls) if cls is not None else ""
+    if isinstance(obj, h5py.Group):
+        if cls != "struct" or depth > 4:
+            return _OBJECT_BYTES
+        return _OBJECT_BYTES + sum(_h5_size(v, seen, depth + 1) for v in obj.values())
+    if not isinstance(obj, h5py.Dataset) or obj.attrs.get("MATLAB_empty"):
+        return _OBJECT_BYTES
+    n = int(np.prod(obj.shape, dtype=object)) if obj.shape is not None else 0
+    if cls == "char":
+        return _OBJECT_BYTES + n * _CHAR_BYTES
+    if cls in _NUMERIC:
+        complex_ = obj.dtype.names is not None and {"real", "imag"} <= set(obj.dtype.names)
+        return _OBJECT_BYTES + n * obj.dtype.itemsize * (2 if complex_ else 1)
+    return _OBJECT_BYTES
+
+
+def _h5_variables(f: Any, names: set[str], max_bytes: int) -> tuple[dict[str, Any], list[str]]:
     """The variables ``names`` of an open MAT v7.3 file (:func:`_h5_value`) and every
-    variable's name (MATLAB's ``#refs#`` and ``#subsystem#`` groups are not variables)."""
+    variable's name (MATLAB's ``#refs#`` and ``#subsystem#`` groups are not variables).
+    What they decode to (:func:`_h5_size`) is counted against ``max_bytes`` before any is
+    read. Raises ValueError."""
     listed = [k for k in f.keys() if not k.startswith("#")]
-    return {k: _h5_value(f[k]) for k in listed if k in names}, listed
+    wanted = [k for k in listed if k in names]
+    seen = [0]
+    need = sum(_h5_size(f[k], seen) for k in wanted)
+    if need > max_bytes:
+        raise ValueError(f"the MAT-file's variables {', '.join(wanted)} declare {need} bytes decoded (every field, "
+                         f"nested or not, each link counted), more than the import's limit of {max_bytes} bytes "
+                         "(refused before decoding)")
+    return {k: _h5_value(f[k]) for k in wanted}, listed
 
 
 def read_variables(source: Source, names: set[str], *, max_bytes: int = MAX_ELEMENTS * 8) -> tuple[dict, list[str]]:
@@ -220,7 +495,14 @@ def read_variables(source: Source, names: set[str], *, max_bytes: int = MAX_ELEM
     names : set of str
         The variables to read (top-level names).
     max_bytes : int, optional
-        The most bytes a MAT v5 file's compressed elements may inflate to, in all.
+        The most bytes a MAT v5 file may take decoded: its variables as held uncompressed
+        and the arrays of those read (every field of a struct, nested or not), each counted
+        from what it declares before it is decoded; and what its compressed elements
+        inflate to, through every layer, at most ``fpscan.service.formats.untrusted.MAX_RATIO``
+        times the file's bytes (+ 1 MiB). A v7.3 file: what the variables read declare
+        (every field of a struct, nested or not, each link counted), before any is read
+        (its datasets were checked when it was opened:
+        ``fpscan.service.formats.untrusted.check_hdf5_file``).
 
     Returns
     -------
@@ -232,13 +514,23 @@ def read_variables(source: Source, names: set[str], *, max_bytes: int = MAX_ELEM
     Raises
     ------
     ValueError
-        A file that is not open, truncated or corrupt, or inflates beyond the limits.
+        A file that is not open, truncated or corrupt, or that decodes beyond the limits.
     """
+    return _read(source, names, max_bytes)
+
+
+def _read(source: Source, names: set[str], max_bytes: int, unless: str | None = None) -> tuple[dict, list[str]]:
+    """:func:`read_variables`, reading every variable instead where the file has no variable
+    ``unless`` among them (in one pass of a MAT v5 file)."""
     if source.h5 is not None:
-        return _h5_variables(source.h5, names)
+        variables, listed = _h5_variables(source.h5, names, max_bytes)
+        if unless is not None and unless not in variables:
+            del variables
+            variables, listed = _h5_variables(source.h5, set(listed), max_bytes)
+        return variables, listed
     if source.fh is None:
         raise ValueError("the MAT-file is not open")
-    return _v5_variables(source.fh, names, max_bytes)
+    return _v5_variables(source.fh, names, max_bytes, unless)
 
 
 # ----------------------------------------------------------------------------- layout
@@ -381,7 +673,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         Also the file's p0 (``p0_true``, ``p0`` or ``source.p0`` matching the data's lateral
         shape) in ``meta["p0"]`` with its depth spacing ``meta["p0_dz"]`` (m).
     max_bytes : int, optional
-        The most bytes the compressed variables may inflate to (MAT v5).
+        The most bytes a MAT v5 file may take decoded (:func:`read_variables`).
     **_
         Other loading options, ignored.
 
@@ -400,9 +692,8 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         file (naming the options to give).
     """
     names = set(_NAMES) | {"sensor_data"} | ({key.split(".")[0]} if key else set())
-    variables, listed = read_variables(source, names, max_bytes=max_bytes)
-    if not key and "sensor_data" not in variables:  # the data under another name: every variable
-        variables, listed = read_variables(source, set(listed), max_bytes=max_bytes)
+    # without sensor_data (and no key) the data is under another name: every variable
+    variables, listed = _read(source, names, max_bytes, unless=None if key else "sensor_data")
     raw, name = _data_array(variables, key, listed)
     n_t = _first(variables, "kgrid.Nt", "Nt")[0]
     data, layout = _time_first(raw, int(n_t) if n_t is not None else None, _mask(variables), name)

@@ -52,7 +52,7 @@ import numpy as np
 
 from fpscan.service.disk import file_replaced
 from fpscan.service.formats.registry import Format
-from fpscan.service.formats.result import ResultVolume, read_result
+from fpscan.service.formats.result import ResultVolume, open_result, read_slabs
 
 __all__ = ["FORMAT", "MAX_VARIABLE_BYTES", "export_mat", "mat_variables"]
 
@@ -98,13 +98,17 @@ def mat_variables(r: ResultVolume) -> dict[str, Any]:
     ((4, 3), (4, 1), (3, 1), False, 0.0001)
     """
     p0 = np.asarray(r.p0)
-    p0 = p0 if p0.dtype == np.float64 else p0.astype(np.float32)
-    lateral = (r.y, r.x) if p0.ndim == 3 and r.y is not None else (r.x,)
-    out: dict[str, Any] = {"p0": p0, "x": _column(r.z), "dx": _step(r.z)}
+    return {"p0": p0 if p0.dtype == np.float64 else p0.astype(np.float32), **_axis_variables(r, p0.ndim)}
+
+
+def _axis_variables(r: ResultVolume, ndim: int) -> dict[str, Any]:
+    """The variables of :func:`mat_variables` but ``p0``: the axes, their spacings and the texts."""
+    lateral = (r.y, r.x) if ndim == 3 and r.y is not None else (r.x,)
+    out: dict[str, Any] = {"x": _column(r.z), "dx": _step(r.z)}
     for name, v in zip(("y", "z"), lateral, strict=False):
         out[name] = _column(v)
         out[f"d{name}"] = _step(v)
-    if p0.ndim == 3:
+    if ndim == 3:
         order = ("p0(ix, iy, iz), k-Wave's naming: x = depth from the sensor plane (fpscan z), "
                  "y = fpscan y, z = fpscan lateral x; coordinates in m")
     else:
@@ -117,7 +121,9 @@ def mat_variables(r: ResultVolume) -> dict[str, Any]:
 def export_mat(result_path: str | os.PathLike, out_path: str | os.PathLike, *,
                max_variable_bytes: int = MAX_VARIABLE_BYTES) -> Path:
     """Write the p0 of a result file and its axes as a MATLAB/Octave MAT v5 file in k-Wave's
-    layout (``scipy.io.savemat``, ``format="5"``, zlib-compressed, 1-D as columns).
+    layout (``scipy.io.savemat``, ``format="5"``, zlib-compressed, 1-D as columns; ``p0``, the
+    last variable, streamed from the result file in slabs as ``savemat`` would write it, so the
+    memory it takes does not grow with the volume).
 
     Parameters
     ----------
@@ -155,17 +161,83 @@ def export_mat(result_path: str | os.PathLike, out_path: str | os.PathLike, *,
     """
     import scipy.io
 
-    r = read_result(result_path)
-    variables = mat_variables(r)
-    p0 = variables["p0"]
-    if p0.nbytes > max_variable_bytes:
-        raise ValueError(f"p0 {tuple(p0.shape)} {p0.dtype} holds {p0.nbytes} bytes, more than a MAT v5 file's limit "
-                         f"of {max_variable_bytes} bytes ({max_variable_bytes / 2**30:g} GiB) per variable; MAT v7.3 "
-                         "(HDF5) would hold it but fpscan does not write it: export it as ome-zarr, ome-tiff or npz, "
-                         "or read the result volume.h5 (HDF5) with MATLAB's h5read")
-    with file_replaced(out_path) as tmp, open(tmp, "wb") as fh:
-        scipy.io.savemat(fh, variables, format="5", do_compression=True, oned_as="column")
+    with open_result(result_path) as r:
+        dtype = _p0_dtype(r.p0)
+        nbytes = int(np.prod(r.p0.shape, dtype=np.int64)) * dtype.itemsize
+        if nbytes > max_variable_bytes:
+            raise ValueError(f"p0 {tuple(r.p0.shape)} {dtype} holds {nbytes} bytes, more than a MAT v5 file's limit "
+                             f"of {max_variable_bytes} bytes ({max_variable_bytes / 2**30:g} GiB) per variable; MAT "
+                             "v7.3 (HDF5) would hold it but fpscan does not write it: export it as ome-zarr, ome-tiff "
+                             "or npz, or read the result volume.h5 (HDF5) with MATLAB's h5read")
+        with file_replaced(out_path) as tmp, open(tmp, "wb") as fh:
+            scipy.io.savemat(fh, _axis_variables(r, len(r.p0.shape)), format="5", do_compression=True,
+                             oned_as="column")
+            _append_compressed_matrix(fh, "p0", r.p0, dtype)
     return Path(out_path)
+
+
+def _p0_dtype(p0: Any) -> np.dtype:
+    """The dtype of p0 in the ``.mat`` export: float64 where the result file stores it, else float32."""
+    return np.dtype(np.float64) if p0.dtype == np.float64 else np.dtype(np.float32)
+
+
+#: the most bytes of p0 the export reads at once: a slab along the last axis (column-major order) reads
+#: every HDF5 chunk of a compressed result (whole depth rows), so fewer, larger slabs decompress it fewer times
+MATRIX_SLAB_BYTES = 16 * 2**20
+
+#: MAT v5 data types and array classes (MathWorks, "MAT-File Format", Tables 1-1 and 1-3)
+_MI_INT8, _MI_INT32, _MI_UINT32, _MI_SINGLE, _MI_DOUBLE, _MI_MATRIX, _MI_COMPRESSED = 1, 5, 6, 7, 9, 14, 15
+_MX_CLASS = {np.dtype(np.float64): (6, _MI_DOUBLE), np.dtype(np.float32): (7, _MI_SINGLE)}
+
+
+def _append_compressed_matrix(fh: Any, name: str, array: Any, dtype: np.dtype) -> None:
+    """Append ``array`` (an HDF5 dataset or ndarray; float32 or float64) to the open MAT v5
+    file ``fh`` as the compressed variable ``name`` (at most 4 characters), read in slabs
+    along its last axis, so that its column-major bytes are written in order and the memory
+    it takes is a slab's (:data:`MATRIX_SLAB_BYTES`; ``fpscan.service.formats.result.read_slabs``).
+
+    The element is the one ``scipy.io.savemat(..., do_compression=True)`` writes (MathWorks,
+    "MAT-File Format", "Compressed Data Elements" and "miMATRIX"): an ``miCOMPRESSED`` tag
+    whose byte count is written once the zlib stream is done, then the zlib stream of an
+    ``miMATRIX`` element: array flags (class single or double), dimensions (int32), the name
+    (a small data element) and the real part (``miSINGLE``/``miDOUBLE``, column-major, padded
+    to 8 bytes), in the file's native byte order (that of its header, as scipy writes it).
+    """
+    import struct
+    import zlib
+
+    shape = tuple(int(n) for n in array.shape)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    mclass, mtype = _MX_CLASS[dtype]
+    dims = struct.pack(f"=II{len(shape)}i", _MI_INT32, 4 * len(shape), *shape)
+    label = name.encode("ascii")
+    assert len(label) <= 4  # one small data element
+    header = (struct.pack("=IIII", _MI_UINT32, 8, mclass, 0) + dims + b"\0" * (-len(dims) % 8)
+              + struct.pack("=I4s", (len(label) << 16) | _MI_INT8, label) + struct.pack("=II", mtype, nbytes))
+    start = fh.tell()
+    fh.write(struct.pack("=II", _MI_COMPRESSED, 0))
+    stream = zlib.compressobj()
+    written = 0
+
+    def put(data: bytes) -> None:
+        nonlocal written
+        packed = stream.compress(data)
+        written += len(packed)
+        fh.write(packed)
+
+    put(struct.pack("=II", _MI_MATRIX, len(header) + nbytes + (-nbytes % 8)) + header)
+    for slab in read_slabs(array, len(shape) - 1, dtype=dtype, max_bytes=MATRIX_SLAB_BYTES):
+        put(slab.tobytes(order="F"))
+    put(b"\0" * (-nbytes % 8))
+    tail = stream.flush()
+    written += len(tail)
+    fh.write(tail)
+    if written >= 2**32:
+        raise ValueError(f"{name} compresses to {written} bytes, more than a MAT v5 element's 4 GiB")
+    end = fh.tell()
+    fh.seek(start + 4)
+    fh.write(struct.pack("=I", written))
+    fh.seek(end)
 
 
 FORMAT = Format(rank=140, name="mat", title="MATLAB/Octave .mat (k-Wave layout)", container="file",

@@ -4,15 +4,14 @@ a folder, served zipped over HTTP; no reader here)."""
 from __future__ import annotations
 
 import os
-import uuid
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fpscan.service.disk import folder_replaced
+from fpscan.service.disk import folder_replaced, temp_sibling
 from fpscan.service.formats.registry import Format
-from fpscan.service.formats.result import ORIENTATION, read_result, volume_description, voxel_sizes_um
+from fpscan.service.formats.result import ORIENTATION, open_result, volume_description, voxel_sizes_um
 
 __all__ = ["FORMAT", "export_ome_zarr", "pyramid_factors", "PYRAMID_TOP", "PYRAMID_MIN", "ZARR_CHUNK"]
 
@@ -79,7 +78,9 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     (:data:`fpscan.service.formats.result.ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"`` or
     ``"a.u."``), ``orientation``, ``method``, ``input_id``, ``description`` and ``axes``.
     Written to a temporary sibling folder, then renamed over ``out_path`` (an existing
-    export there is replaced).
+    export there is replaced). The volume is read from the result file block by block
+    (``dask``'s synchronous scheduler: one block at a time, in the calling thread) as the
+    levels are written, so the memory it takes does not grow with the volume.
 
     Parameters
     ----------
@@ -100,29 +101,32 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     ValueError
         Not a result file, uneven coordinates, or ``out_path`` an existing file.
     """
+    import dask
+    import dask.array as da
     import zarr
     from ome_zarr.format import CurrentFormat
     from ome_zarr.io import parse_url
     from ome_zarr.scale import Methods
     from ome_zarr.writer import write_image
 
-    r = read_result(result_path)
-    axes, steps = voxel_sizes_um(r, "OME-Zarr")
-    names = [a.lower() for a in axes]
-    coords = [r.z, r.y, r.x] if len(axes) == 3 else [r.z, r.x]
-    origin = [float(f"{np.asarray(v)[0] * 1e6:.12g}") for v in coords]
     out_path = Path(out_path)
     if out_path.exists() and not out_path.is_dir():
         raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
-    fmt = CurrentFormat()
-    p0 = np.ascontiguousarray(r.p0, dtype=np.float32)
-    with folder_replaced(out_path, tmp):
+    with open_result(result_path) as r, folder_replaced(out_path, temp_sibling(out_path)) as tmp:
+        axes, steps = voxel_sizes_um(r, "OME-Zarr")
+        names = [a.lower() for a in axes]
+        coords = [r.z, r.y, r.x] if len(axes) == 3 else [r.z, r.x]
+        origin = [float(f"{np.asarray(v)[0] * 1e6:.12g}") for v in coords]
+        fmt = CurrentFormat()
+        chunks = tuple(min(int(n), ZARR_CHUNK) for n in r.p0.shape)
+        # read block by block as the levels are written: one task at a time, in this thread
+        p0 = da.from_array(r.p0, chunks=chunks, lock=True, asarray=True).astype(np.float32)
         root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store)
-        write_image(p0, root, scale_factors=pyramid_factors(p0.shape, names), method=Methods.LOCAL_MEAN, fmt=fmt,
-                    axes=names, scale=dict(zip(names, steps)), axes_units=dict.fromkeys(names, "micrometer"),
-                    storage_options={"chunks": tuple(min(n, ZARR_CHUNK) for n in p0.shape)},
-                    name=f"p0 ({r.method}, {r.input_id})")
+        writes = write_image(p0, root, scale_factors=pyramid_factors(p0.shape, names), method=Methods.LOCAL_MEAN,
+                             fmt=fmt, axes=names, scale=dict(zip(names, steps)),
+                             axes_units=dict.fromkeys(names, "micrometer"), storage_options={"chunks": chunks},
+                             name=f"p0 ({r.method}, {r.input_id})", compute=False)
+        dask.compute(*writes, scheduler="synchronous")
         # the writer places level 0 at the origin: every level moves by the first sample's position
         ome: Any = root.attrs["ome"]
         for level in ome["multiscales"][0]["datasets"]:

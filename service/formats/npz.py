@@ -17,7 +17,7 @@ import numpy as np
 
 from fpscan.service.disk import file_replaced
 from fpscan.service.formats.registry import Format
-from fpscan.service.formats.result import read_result
+from fpscan.service.formats.result import open_result, read_slabs
 
 __all__ = ["FORMAT", "export_npz"]
 
@@ -30,7 +30,9 @@ def export_npz(result_path: str | os.PathLike, out_path: str | os.PathLike) -> P
     result_path : str or os.PathLike
         A reconstruction result ``volume.h5`` (``fpscan.service.formats.result``).
     out_path : str or os.PathLike
-        The ``.npz`` file to write (a temporary sibling, then renamed into place).
+        The ``.npz`` file to write (a temporary sibling, then renamed into place); the volume
+        is read and written in depth slabs (``fpscan.service.formats.result.read_slabs``), so the
+        memory it takes does not grow with the volume.
 
     Returns
     -------
@@ -57,13 +59,26 @@ def export_npz(result_path: str | os.PathLike, out_path: str | os.PathLike) -> P
     >>> sorted(np.load(out))
     ['input_id', 'method', 'p0', 'p0_unit', 'x', 'y', 'z']
     """
-    r = read_result(result_path)
-    arrays: dict[str, Any] = {"p0": np.asarray(r.p0, dtype=np.float32), "z": r.z, "x": r.x, "p0_unit": np.array(r.p0_unit),
-              "method": np.array(r.method), "input_id": np.array(r.input_id)}
-    if r.y is not None:
-        arrays["y"] = r.y
-    with file_replaced(out_path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, allow_pickle=False, **arrays)
+    import zipfile
+
+    from numpy.lib import format as npy
+
+    with open_result(result_path) as r:
+        arrays: dict[str, Any] = {"p0": r.p0, "z": r.z, "x": r.x, "p0_unit": np.array(r.p0_unit),
+                                  "method": np.array(r.method), "input_id": np.array(r.input_id)}
+        if r.y is not None:
+            arrays["y"] = r.y
+        # as np.savez writes it (uncompressed, each member forced to ZIP64), p0 in depth slabs
+        with file_replaced(out_path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+            for name, value in arrays.items():
+                with z.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                    if name != "p0":
+                        npy.write_array(fh, np.asanyarray(value), allow_pickle=False)
+                        continue
+                    npy.write_array_header_1_0(fh, {"descr": npy.dtype_to_descr(np.dtype(np.float32)),
+                                                    "fortran_order": False, "shape": tuple(value.shape)})
+                    for slab in read_slabs(value, 0):
+                        fh.write(slab.data)
     return Path(out_path)
 
 

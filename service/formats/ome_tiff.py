@@ -10,7 +10,13 @@ import numpy as np
 
 from fpscan.service.disk import file_replaced
 from fpscan.service.formats.registry import Format
-from fpscan.service.formats.result import ResultVolume, read_result, volume_description, voxel_sizes_um
+from fpscan.service.formats.result import (
+    ResultVolume,
+    open_result,
+    read_slabs,
+    volume_description,
+    voxel_sizes_um,
+)
 
 __all__ = ["FORMAT", "export_ome_tiff", "plane_positions_um"]
 
@@ -63,7 +69,8 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     ``translation``: every OME ``Plane`` gives its position in µm, ``PositionX``/``PositionY``
     the first voxel's centre (``x[0]``, ``y[0]``; 2-D: ``x[0]`` and the first depth ``z[0]``)
     and, 3-D, ``PositionZ`` the plane's depth ``z[k]``. Written to a temporary sibling, then
-    renamed.
+    renamed; a 3-D volume is read and written one depth plane (one TIFF page) at a time, so the
+    memory it takes is a plane's, not the volume's.
 
     Parameters
     ----------
@@ -86,17 +93,21 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     """
     import tifffile
 
-    r = read_result(result_path)
-    axes, steps = voxel_sizes_um(r, "OME-TIFF")
-    meta: dict[str, Any] = {"axes": axes, "Name": f"p0 ({r.method}, {r.input_id})",
-                            "Description": volume_description(r)}
-    for a, step in zip(axes, steps):
-        meta[f"PhysicalSize{a}"] = step
-        meta[f"PhysicalSize{a}Unit"] = "µm"
-    meta["Plane"] = plane_positions_um(r)
-    with file_replaced(out_path) as tmp:
-        tifffile.imwrite(tmp, np.ascontiguousarray(r.p0, dtype=np.float32), ome=True,
-                         photometric="minisblack", metadata=meta)
+    with open_result(result_path) as r:
+        axes, steps = voxel_sizes_um(r, "OME-TIFF")
+        meta: dict[str, Any] = {"axes": axes, "Name": f"p0 ({r.method}, {r.input_id})",
+                                "Description": volume_description(r)}
+        for a, step in zip(axes, steps):
+            meta[f"PhysicalSize{a}"] = step
+            meta[f"PhysicalSize{a}Unit"] = "µm"
+        meta["Plane"] = plane_positions_um(r)
+        shape = tuple(int(n) for n in r.p0.shape)
+        # 3-D: one depth plane (one TIFF page) read at a time; 2-D: its one page
+        pages = (page for slab in read_slabs(r.p0, 0, max_bytes=0) for page in slab) if len(shape) == 3 \
+            else iter([np.ascontiguousarray(r.p0[()], dtype=np.float32)])
+        with file_replaced(out_path) as tmp:
+            tifffile.imwrite(tmp, pages, shape=shape, dtype=np.float32, ome=True, photometric="minisblack",
+                             metadata=meta)
     return Path(out_path)
 
 

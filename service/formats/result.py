@@ -18,8 +18,8 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
-import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.driver.scanfile import PRESSURE_UNITS
-from fpscan.service.disk import copy_replaced
+from fpscan.service.disk import copy_replaced, file_replaced, fsync_tree
 from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import current_names
 from fpscan.wire.brief import one_line
@@ -39,7 +39,8 @@ if TYPE_CHECKING:
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
            "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
-           "mip_file", "write_reconstruction", "write_folder", "voxel_sizes_um", "volume_description"]
+           "mip_file", "write_reconstruction", "write_folder", "voxel_sizes_um", "volume_description", "open_result",
+           "read_slabs", "SLAB_BYTES"]
 
 RESULT_FORMAT = "fpscan-result/1"
 
@@ -233,8 +234,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         software_version = installed_version()
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
-    try:
+    with file_replaced(path) as tmp:  # a temporary sibling, renamed over path; removed on any error
         with h5py.File(tmp, "w") as f:
             d = f.create_dataset("p0", data=p0, **storage_layout(p0))
             axes = [("z", z)] + ([("y", y)] if y is not None else []) + [("x", x)]
@@ -259,12 +259,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
             a["units"] = f"m for coordinates; p0 in {p0_unit}"
             a["p0_unit"] = p0_unit
             a["orientation"] = ORIENTATION
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        fsync_tree(tmp, parent=False)  # its data on disk before the rename names it
     return path
 
 
@@ -478,16 +473,98 @@ def load(source: Source, **_: Any) -> ResultVolume:
     ValueError
         Not a result file.
     """
+    return _volume(source, whole=True)
+
+
+def _volume(source: Source, *, whole: bool) -> ResultVolume:
+    """The result file's :class:`ResultVolume`, its ``p0`` read (``whole``) or the HDF5 dataset
+    itself (read by slicing); ValueError for a file that is not a result."""
     f = source.h5
     attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-    if attrs.get("format") != RESULT_FORMAT:
+    if attrs.get("format") != RESULT_FORMAT or not isinstance(f.get("p0"), h5py.Dataset):
         raise ValueError(f"{source.path} is not an {RESULT_FORMAT} file")
-    p0 = f["p0"][()]
+    p0 = f["p0"][()] if whole else f["p0"]
     z, x = f["z"][()], f["x"][()]
     y = f["y"][()] if "y" in f else None
     return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
                         params=current_names(json.loads(attrs["params"])), input_id=str(attrs["input_id"]),
                         attrs=attrs)
+
+
+@contextmanager
+def open_result(path: str | os.PathLike) -> Iterator[ResultVolume]:
+    """A result file open for reading in parts: what an export reads, a slab at a time
+    (:func:`read_slabs`), so that its peak memory does not grow with the volume.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``volume.h5``.
+
+    Returns
+    -------
+    contextlib.AbstractContextManager of ResultVolume
+        Entered, the volume: ``z``, ``x``, ``y`` and the attributes read, ``p0`` the HDF5
+        dataset itself (``(n_z, n_y, n_x)`` or ``(n_z, n_x)``; ``p0[k]`` reads one depth
+        plane), valid until the block ends. A file open by a writer (the SWMR flag) is read
+        whole instead, in a bounded child (:func:`read_result`).
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Not a result file.
+    """
+    from fpscan.service.formats.registry import open_source
+    from fpscan.service.formats.untrusted import writer_flagged
+
+    if writer_flagged(path):
+        yield read_result(path)
+        return
+    with open_source(path, "hdf5", name="result") as src:
+        yield _volume(src, whole=False)
+
+
+#: the most bytes :func:`read_slabs` reads at once (by default)
+SLAB_BYTES = 4 * 2**20
+
+
+def read_slabs(p0: Any, axis: int = 0, *, dtype: npt.DTypeLike = np.float32,
+               max_bytes: int = SLAB_BYTES) -> Iterator[np.ndarray]:
+    """A volume read in slabs along one axis, each of at most ``max_bytes`` (at least one
+    plane): how the exports stream a result's p0 (:func:`open_result`) with a bounded peak.
+
+    Parameters
+    ----------
+    p0 : h5py.Dataset or ndarray
+        The volume, e.g. ``(n_z, n_y, n_x)``.
+    axis : int, optional
+        The axis the slabs follow (default 0, depth: whole HDF5 chunks of a result file,
+        :func:`storage_layout`); the slabs' concatenation along it is ``p0``.
+    dtype : numpy dtype, optional
+        The slabs' dtype (default float32).
+    max_bytes : int, optional
+        The most bytes of one slab (default :data:`SLAB_BYTES`, 4 MiB).
+
+    Returns
+    -------
+    iterator of ndarray
+        The slabs in order, C-contiguous, of ``dtype``.
+
+    Examples
+    --------
+    >>> [s.shape for s in read_slabs(np.zeros((5, 4, 4)), axis=0, max_bytes=2 * 64)]
+    [(2, 4, 4), (2, 4, 4), (1, 4, 4)]
+    """
+    dtype = np.dtype(dtype)
+    n = int(p0.shape[axis])
+    plane = max(1, int(np.prod(p0.shape, dtype=np.int64)) // max(n, 1) * dtype.itemsize)
+    step = max(1, int(max_bytes) // plane)
+    for start in range(0, n, step):
+        index = [slice(None)] * len(p0.shape)
+        index[axis] = slice(start, min(start + step, n))
+        yield np.ascontiguousarray(p0[tuple(index)], dtype=dtype)
 
 
 def voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:

@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fpscan.service.disk import file_replaced
 from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import current_names
 
@@ -115,8 +116,7 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
     path = Path(path)
     # the result files' one canonical parameter JSON (ValueError before anything is written)
     params = params_json(current_names({**u.params, **(extra or {})}))
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with h5py.File(tmp, "w") as f:
+    with file_replaced(path) as tmp, h5py.File(tmp, "w") as f:  # a temporary sibling, removed on any error
         f.attrs["format"] = UNMIX_FORMAT
         f.attrs["params"] = params
         f.attrs["input_id"] = input_id
@@ -129,7 +129,6 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
         if y is not None:
             f.create_dataset("y", data=np.asarray(y, dtype=np.float64))
         f.create_dataset("wavelengths_m", data=u.wavelengths)
-    os.replace(tmp, path)
     return path
 
 

@@ -12,7 +12,11 @@ reserved, before the dataset file is written).
 
 The HDF5 library can block while holding the GIL (a damaged file opened as an SWMR reader
 retries forever), so the service runs the whole import in a child process with a time
-limit: :func:`run_bounded`. The library and the CLI read a user's file in their own
+limit and an address-space limit: :func:`run_bounded`. An upload's import decodes at most
+:func:`hdf5_limit` bytes (every array it reads, through every compressed layer, sized
+before it is decoded) in a child capped at :func:`import_memory_limit`. The child dies with
+the process that asked for it (:func:`run_bounded`: no orphans after a crash or a
+``kill -9`` of the server). The library and the CLI read a user's file in their own
 process, except a file HDF5 would open as an SWMR reader (its superblock says a writer has,
 or had, it open: :func:`writer_flagged`): :func:`read_bounded` reads that one in the same
 bounded child.
@@ -30,7 +34,9 @@ from typing import Any
 
 from fpscan.driver.hdf5_checks import HDF5_SIGNATURE, MAX_RATIO, SMALL_BYTES, check_hdf5_file, is_hdf5
 
-__all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S", "is_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission", "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit"]
+__all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S",
+           "IMPORT_MEMORY_FLOOR", "is_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission",
+           "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit", "import_memory_limit"]
 
 #: Longest wait for a child process of :func:`run_bounded` to start (s).
 STARTUP_S = 120.0
@@ -82,12 +88,13 @@ def request_admission(nbytes: int) -> None:
 
 
 class DiskAdmission:
-    """Free-space admission of imports that run at once.
+    """Free-space admission of uploads and imports that run at once.
 
-    An import asks before it writes (:func:`request_admission`) and is admitted when its bytes
-    fit the free space of ``folder``'s file system less ``reserve_bytes`` (left for the job
-    database, scans and results) less what the imports in flight were admitted for; its
-    reservation lasts until :meth:`release`. So two uploads at once cannot together fill the
+    An import asks before it writes (:func:`request_admission`), and an upload's body before
+    it is spooled (``fpscan.service.api.spool``); each is admitted when its bytes fit the free
+    space of ``folder``'s file system less ``reserve_bytes`` (left for the job database,
+    scans and results) less what the uploads and imports in flight were admitted for; its
+    reservation lasts until :meth:`release`. So uploads at once cannot together fill the
     disk. Thread-safe.
 
     Parameters
@@ -118,18 +125,35 @@ class DiskAdmission:
         with self._lock:
             return sum(self._reserved.values())
 
-    def reserve(self, key: str, nbytes: int) -> str | None:
-        """Admit ``nbytes`` for ``key`` (None) or say why not (the reason)."""
-        import shutil
+    def reserve(self, key: str, nbytes: int, what: str | None = None) -> str | None:
+        """Admit ``nbytes`` for ``key`` (None) or say why not (the reason).
+
+        Parameters
+        ----------
+        key : str
+            The reservation's name (:meth:`release` ends it; a second ``reserve`` replaces it).
+        nbytes : int
+            The bytes to be written.
+        what : str or None, optional
+            The reason's start, what needs the bytes (e.g. "the upload holds 5 bytes");
+            default None: "the dataset decodes to ``nbytes`` bytes".
+
+        Returns
+        -------
+        str or None
+            None when admitted; else why not (the bytes asked for, the room left, what to do).
+            Free bytes that cannot be read count as none.
+        """
+        from fpscan.service.disk import free_bytes
 
         with self._lock:
-            free = shutil.disk_usage(self.folder).free
+            free = free_bytes(self.folder) or 0
             others = sum(v for k, v in self._reserved.items() if k != key)
             room = free - others - self.reserve_bytes
             if nbytes > room:
-                return (f"the dataset decodes to {nbytes} bytes but the data folder's disk can take "
-                        f"{max(room, 0)} more ({free} free, {others} reserved by imports in progress, "
-                        f"{self.reserve_bytes} kept free); free space or retry later")
+                return (f"{what or f'the dataset decodes to {nbytes} bytes'} but the data folder's disk can take "
+                        f"{max(room, 0)} more ({free} free, {others} reserved by uploads, imports and exports in "
+                        f"progress, {self.reserve_bytes} kept free); free space or retry later")
             self._reserved[key] = int(nbytes)
             return None
 
@@ -138,7 +162,7 @@ class DiskAdmission:
             self._reserved.pop(key, None)
 
 
-def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
+def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None = None) -> None:
     try:
         conn.put(("ok", fn(*args, **kwargs)))
     except NotAdmitted as exc:
@@ -148,7 +172,8 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except FileNotFoundError as exc:
         conn.put(("value", f"file not found: {exc.filename or exc}"))
     except MemoryError:
-        conn.put(("value", "the file needs more memory than the limit allows"))
+        limit = f" of {memory_bytes} bytes" if memory_bytes else ""
+        conn.put(("value", f"the file needs more memory than the import's limit{limit} allows"))
     except OSError as exc:
         from fpscan.service.disk import is_disk_full
 
@@ -177,6 +202,57 @@ def _child_context() -> Any:
     return ctx
 
 
+def _fork_server_pid(ctx: Any) -> int | None:
+    """The pid of ``ctx``'s fork server, started if it is not running (None: not a fork
+    server's context, or not known on this Python)."""
+    if ctx.get_start_method() != "forkserver":
+        return None
+    from multiprocessing import forkserver
+
+    forkserver.ensure_running()
+    return getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None)
+
+
+#: Linux ``prctl`` option: the signal a process gets when its parent ends (``<sys/prctl.h>``)
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int | None) -> None:
+    """In a child of :func:`run_bounded` (forked by the fork server, pid ``parent``): end with
+    the caller. A fork server's children hold the write end of its "alive" pipe; the server
+    leaves when every holder has closed it (Python's ``multiprocessing.forkserver``): this
+    child closes its copy (it starts no processes), so the caller's is the last one and the
+    fork server leaves when the caller does, however the caller ends (``kill -9``
+    included); and it asks Linux for SIGKILL when its parent, the fork server's one thread,
+    ends (``prctl(PR_SET_PDEATHSIG)``, prctl(2)) -- no Python code has to run for it, so a
+    child stuck in the HDF5 library holding the GIL ends too. Once both are gone nothing
+    holds the resource tracker's pipe and it leaves as well. Checked after the request:
+    a parent already gone (it left before the request took) ends this child at once."""
+    if parent is None:
+        return
+    from multiprocessing import forkserver
+
+    server = getattr(forkserver, "_forkserver", None)
+    alive = getattr(server, "_forkserver_alive_fd", None)
+    if alive is not None:
+        try:
+            os.close(alive)
+        except OSError:
+            pass
+        server._forkserver_alive_fd = None  # type: ignore[union-attr]
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
+            return
+    except (OSError, AttributeError):  # not Linux
+        return
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 def _child_nice() -> int | None:
     """The niceness of a reading child: the caller's + ``CHILD_NICE`` (at most 19); None where
     the platform has no priorities."""
@@ -203,7 +279,10 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
 
     The child (:func:`_child_context`) runs at CPU priority + ``CHILD_NICE`` and is killed
     when it has not returned ``timeout`` s after it started (imports done; the start itself is
-    bounded by :data:`STARTUP_S`). ``fn`` and its arguments and result must be picklable.
+    bounded by :data:`STARTUP_S`). ``fn`` and its arguments and result must be picklable. It
+    ends with the caller (a fork server's child on Linux: :func:`_die_with_parent`), so a
+    caller killed meanwhile leaves no process behind: not the child, not the fork server,
+    not multiprocessing's resource tracker.
 
     Parameters
     ----------
@@ -215,7 +294,7 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
         Time limit in s, from the child's start.
     memory_bytes : int, optional
         Address-space limit of the child (``RLIMIT_AS``), so a file that expands past it fails
-        there with MemoryError, not in the caller.
+        there with MemoryError (a ValueError saying so here), not in the caller.
     what : str, optional
         What is read, for the messages (default ``"the file"``).
     admit : callable, optional
@@ -245,7 +324,8 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     # never runs while the child's main thread blocks in HDF5 holding the GIL
     ready = ctx.Event()
     nice = _child_nice()
-    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers, nice),
+    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers, nice,
+                                                    _fork_server_pid(ctx)),
                        daemon=True)
     proc.start()
     if proc.pid is not None:  # from here too, not only in the child: a spawned child's start is costly
@@ -292,11 +372,13 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
 
 
 def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None,
-                   answers: Any = None, nice: int | None = None) -> None:
-    """The child's start: its niceness ``nice`` (absolute, the same value the parent sets
-    from outside: a forked child can run ``fn`` before the parent's setpriority reaches it),
-    its address-space limit, then ``fn`` (:func:`_child`)."""
+                   answers: Any = None, nice: int | None = None, fork_server: int | None = None) -> None:
+    """The child's start: bound to its parent's life (:func:`_die_with_parent`; its parent
+    the fork server ``fork_server``), its niceness ``nice`` (absolute, the same value the
+    parent sets from outside: a forked child can run ``fn`` before the parent's setpriority
+    reaches it), its address-space limit, then ``fn`` (:func:`_child`)."""
     global _ADMISSION
+    _die_with_parent(fork_server)
     _set_nice(0, nice)
     if answers is not None:
         _ADMISSION = (q, answers)
@@ -308,7 +390,7 @@ def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, 
             resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
         except (ImportError, ValueError, OSError):  # not on this platform
             pass
-    _child(q, fn, args, kwargs)
+    _child(q, fn, args, kwargs, memory_bytes)
 
 
 #: Time limit (s) of :func:`read_bounded` (the service's upload limit is its own setting).
@@ -383,11 +465,20 @@ def read_bounded(fn: Callable, path: str | os.PathLike, *args: Any, timeout: flo
     return run_bounded(fn, path, *args, timeout=timeout, what=f"{Path(path).name} (open by a writer)", **kwargs)
 
 
-def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
-    """Largest declared dataset (bytes) an upload may hold.
+#: The least address space an import child is given (bytes): forked from the fork server, its
+#: interpreter and libraries (numpy, scipy, h5py) map 0.18 GB before it reads a byte (measured;
+#: OpenBLAS's threads are shut down before a fork, so this does not grow with the cores)
+IMPORT_MEMORY_FLOOR = 1 << 30
 
-    It must fit the upload limit uncompressed ×4 (compressed files) and half the
-    reconstruction memory limit (the import converts samples to float).
+
+def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
+    """The decode budget of an upload's import (bytes).
+
+    An HDF5 file's datasets may declare at most this, any one and all together (each link
+    counted: ``check_hdf5_file``), and a MAT-file's variables may take at most this decoded,
+    every field of a struct or cell, nested or not, sized before it is decoded
+    (``fpscan.service.formats.kwave_mat``). It must fit the upload limit uncompressed ×4
+    (compressed files) and half the memory limit (the import converts samples to float).
 
     Parameters
     ----------
@@ -403,3 +494,23 @@ def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
     """
     return int(min(4 * upload_limit, memory_limit // 2))
 
+
+def import_memory_limit(memory_limit: int) -> int:
+    """The address-space limit (``RLIMIT_AS``, bytes) of an upload's import child: the
+    memory limit itself, at least :data:`IMPORT_MEMORY_FLOOR`.
+
+    The child decodes at most :func:`hdf5_limit` (at most half of this) and converts it to
+    float; a file that needs more fails there with MemoryError and is refused with the
+    reason. ``import_workers`` children at once take at most that many times this.
+
+    Parameters
+    ----------
+    memory_limit : int
+        Bytes available to reconstructions at once (``Settings.memory_limit``).
+
+    Returns
+    -------
+    int
+        ``max(memory_limit, IMPORT_MEMORY_FLOOR)``.
+    """
+    return int(max(memory_limit, IMPORT_MEMORY_FLOOR))

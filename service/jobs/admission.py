@@ -20,7 +20,8 @@ from typing import Any
 from fpscan.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
 __all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "admit_device", "estimate_gpu_memory", "estimate_memory",
-           "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "working_depth_rows"]
+           "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "output_depth_rows",
+           "working_depth_rows"]
 
 
 class AdmissionError(ValueError):
@@ -115,16 +116,79 @@ def _facts(record: dict) -> dict:
     return out
 
 
-def working_depth_rows(shape: dict, params: dict) -> int:
-    """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
-    (``fpscan.service.recon.planar``: no recorded signal may fold back through the depth
-    period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``.
+def _speed(shape: dict, params: dict) -> float:
+    """The speed of sound a job reconstructs at, m/s: ``params["sound_speed"]``, the fastest of
+    ``sound_speed_range`` (default ``C_AUTOFOCUS_RANGE``) for ``"auto"`` (it reaches deepest),
+    else the input's, else ``C_DEFAULT``."""
+    c_param = params.get("sound_speed")
+    if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
+        c_param = max(params.get("sound_speed_range") or C_AUTOFOCUS_RANGE)
+    return float(c_param or shape.get("sound_speed") or C_DEFAULT)
+
+
+def _start(shape: dict, params: dict) -> float:
+    """The time of sample 0, s: the input's, else ``params["t0"]``, else 0."""
+    return float(shape.get("t0") or params.get("t0") or 0.0)
+
+
+def output_depth_rows(shape: dict, params: dict) -> int:
+    """The depth rows of the output volume: ``n_z``, else the default grid's
+    (``fpscan.service.recon.depth.depth_grid``, every method's rule: the input's pitch ``dx``,
+    c·dt where that is finer, down to c·t_last), as the reconstruction makes them. Where the
+    input declares a sensor band f (``bandwidth``, at which ``tv`` works: its spacing c / (2 f))
+    and that spacing is finer, its rows are counted: an upper bound for every method.
 
     Parameters
     ----------
     shape : dict
-        :func:`input_shape`'s: needs ``n_t`` and, when ``dz`` is given, ``dt`` (s) and
-        ``sound_speed`` (m/s; ``params["sound_speed"]`` wins).
+        :func:`input_shape`'s: ``n_t`` and, for the default grid, ``dt`` (s), ``dx`` (m; None:
+        not known, the spacing is then c·dt, the most rows), ``sound_speed`` (m/s), ``t0`` (s)
+        and ``bandwidth`` (Hz).
+    params : dict
+        The options: ``n_z``, ``dz`` (m), ``sound_speed`` (m/s, or ``"auto"``: the fastest of
+        ``sound_speed_range``), ``t0`` (s, where the shape has none).
+
+    Returns
+    -------
+    int
+        Rows; ``n_z`` (default ``n_t``) where ``dt`` is not known.
+
+    Raises
+    ------
+    ValueError
+        ``n_z`` or ``dz`` outside its range (``fpscan.service.recon.checks.OptionError``).
+
+    Examples
+    --------
+    >>> from fpscan.service.jobs.admission import output_depth_rows
+    >>> shape = {"n_t": 751, "n_x": 96, "n_y": 96, "dt": 8e-9, "dx": 60e-6, "sound_speed": 1500.0}
+    >>> output_depth_rows(shape, {}), output_depth_rows(shape, {"n_z": 64}), output_depth_rows(shape, {"dz": 3e-5})
+    (151, 64, 301)
+    """
+    n_t = int(shape["n_t"])
+    if shape.get("dt") is None:
+        return int(params.get("n_z") or n_t)
+    from fpscan.service.recon.depth import depth_grid
+
+    c, pitch = _speed(shape, params), shape.get("dx")
+    if pitch and shape.get("bandwidth"):  # tv's spacing at a declared sensor band, where finer
+        pitch = min(float(pitch), c / (2.0 * float(shape["bandwidth"])))
+    _, n_z = depth_grid(n_t, float(shape["dt"]), c, pitch, dz=params.get("dz") or None,
+                        n_z=params.get("n_z") or None, t0=_start(shape, params))
+    return n_z
+
+
+def working_depth_rows(shape: dict, params: dict) -> int:
+    """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
+    (``fpscan.service.recon.planar``: no recorded signal may fold back through the depth
+    period), with the output grid's ``n_z`` and ``dz`` (:func:`output_depth_rows`; the default
+    ``dz`` the input's pitch ``dx``, c·dt where that is finer or not known).
+
+    Parameters
+    ----------
+    shape : dict
+        :func:`input_shape`'s: needs ``n_t`` and, for the depth reached, ``dt`` (s), ``dx`` (m),
+        ``sound_speed`` (m/s; ``params["sound_speed"]`` wins) and ``t0`` (s).
     params : dict
         The options: ``n_z``, ``dz`` (m), ``sound_speed`` (m/s, or ``"auto"``: the fastest of
         ``sound_speed_range``, default ``C_AUTOFOCUS_RANGE``), ``t0`` (s).
@@ -132,28 +196,28 @@ def working_depth_rows(shape: dict, params: dict) -> int:
     Returns
     -------
     int
-        Depth rows; ``n_z`` (default ``n_t``) when ``dz`` or ``dt`` is not given.
+        Depth rows; ``n_z`` (default ``n_t``) when ``dt`` is not given.
 
     Raises
     ------
     AdmissionError
         The rows ``c·t_last/dz`` reach are not fewer than :data:`MAX_DEPTH_ROWS`.
+    ValueError
+        What :func:`output_depth_rows` refuses.
     """
     n_t = int(shape["n_t"])
-    n_z = int(params.get("n_z") or n_t)
-    dz = params.get("dz")
-    if dz is None or shape.get("dt") is None:
-        return n_z
-    c_param = params.get("sound_speed")
-    if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
-        c_param = max(params.get("sound_speed_range") or C_AUTOFOCUS_RANGE)
-    c = float(c_param or shape.get("sound_speed") or C_DEFAULT)
-    reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
+    if shape.get("dt") is None:
+        return int(params.get("n_z") or n_t)
+    from fpscan.service.recon.depth import default_spacing
+
+    c, dt = _speed(shape, params), float(shape["dt"])
+    dz = float(params["dz"]) if params.get("dz") else default_spacing(dt, c, shape.get("dx"))
+    reach = c * (_start(shape, params) + (n_t - 1) * dt) / dz
     if not reach < MAX_DEPTH_ROWS:
         raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
                              f"{reach:.3g} rows (at most {MAX_DEPTH_ROWS}); use a larger dz (c·dt is "
-                             f"{c * float(shape['dt']):.3g} m)")
-    return max(n_z, int(reach) + 2)
+                             f"{c * dt:.3g} m)")
+    return max(output_depth_rows(shape, params), int(reach) + 2)
 
 
 def _default_method(shape: dict) -> str:
@@ -255,7 +319,7 @@ def estimate_gpu_memory(shape: dict, params: dict) -> int | None:
     n_yp, n_xp = fast_lateral(n_y, n_x, square=True)
     rows = working_depth_rows(shape, params)
     upsample = int(params.get("upsample") or 1)
-    n_out = int(params.get("n_z") or n_t) * n_x * upsample * (n_y * upsample if n_y > 1 else 1)
+    n_out = output_depth_rows(shape, params) * n_x * upsample * (n_y * upsample if n_y > 1 else 1)
     data = n_t * n_x * n_y if method == "ner" else 0
     return gpu.inversion_peak(n_t, n_yp * (n_xp // 2 + 1), rows, n_out, float(params.get("eps") or 1e-6),
                               params.get("dtype") or "float32", data)
@@ -295,8 +359,8 @@ def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
 
 
 def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
-    """Bytes a reconstruction's result folder takes on disk: ``volumes`` images of ``n_z``
-    rows (default ``n_t``; k-Wave's modes: ``n_t``) by the lateral grid times the method's
+    """Bytes a reconstruction's result folder takes on disk: ``volumes`` images of
+    :func:`output_depth_rows` rows (k-Wave's modes: ``n_t``) by the lateral grid times the method's
     upsampling (``fpscan.service.recon.methods.Method.upsample``: its ``upsample`` option, 1 without) in
     the working precision (``volume.h5``, chunked and uncompressed), 2 % for the HDF5 file's
     own structure and 1 MiB per volume for its pictures (MIPs: PNG). The queue holds a job
@@ -308,7 +372,7 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
     shape : dict
         :func:`input_shape`'s.
     params : dict
-        ``method``, ``n_z``, ``upsample``, ``dtype``.
+        ``method``, ``n_z``, ``dz``, ``upsample``, ``dtype``, ``sound_speed``.
     volumes : int, optional
         Volumes written (a wavelength each; an unmixing job's maps count as 5 more).
 
@@ -327,7 +391,7 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
 
     method = method_named(params.get("method") or _default_method(shape))
     takes_depth = "n_z" in method.options
-    n_z = int(params.get("n_z") or shape["n_t"]) if takes_depth else int(shape["n_t"])  # else n_t rows (k-Wave)
+    n_z = output_depth_rows(shape, params) if takes_depth else int(shape["n_t"])  # else n_t rows (k-Wave)
     up = method.upsample(params)  # the method's lateral upsampling (1 where it takes no upsample)
     n_y = int(shape.get("n_y", 1))
     voxels = n_z * int(shape["n_x"]) * up * (n_y * up if n_y > 1 else 1)

@@ -50,6 +50,7 @@ from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any
 
+from fpscan.service.disk import free_bytes
 from fpscan.service.jobs.store import ACTIVE, JobStore
 from fpscan.service.storage.usage import tree_bytes, usage_for
 
@@ -477,6 +478,11 @@ def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
         with it), "jobs" (ids of the jobs that read it, any state), "in_use" (a queued,
         running or paused one does)}``.
     """
+    return [listed for listed, _ in _datasets(store, data_dir)]
+
+
+def _datasets(store: JobStore, data_dir: str | os.PathLike) -> list[tuple[dict, float]]:
+    """:func:`list_datasets`' rows, each with the store time of its upload or latest use (s)."""
     users: dict[str, list[str]] = {}
     active: set[str] = set()
     for job in store.list(kind="recon", limit=1_000_000):
@@ -484,16 +490,16 @@ def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
             users.setdefault(ds, []).append(job["id"])
             if job["state"] in ACTIVE:
                 active.add(ds)
-    out = []
+    out: list[tuple[dict, float]] = []
     for row in store.list_datasets():
         meta, did = row["meta"], row["id"]
-        out.append({"dataset_id": did, "name": meta.get("name"), "format": meta.get("format"),
-                    "layout": meta.get("layout"), "shape": meta.get("shape"), "dt": meta.get("dt"),
-                    "wavelength_nm": meta.get("wavelength_nm"), "wavelength_index": meta.get("wavelength_index"),
-                    "content_sha256": meta.get("content_sha256"),
-                    "size_bytes": _tree_bytes(Path(data_dir) / "datasets" / did), "created": row["created"],
-                    "last_used": max(float(meta.get("last_used") or 0.0), row["created"]),
-                    "jobs": users.get(did, []), "in_use": did in active})
+        out.append(({"dataset_id": did, "name": meta.get("name"), "format": meta.get("format"),
+                     "layout": meta.get("layout"), "shape": meta.get("shape"), "dt": meta.get("dt"),
+                     "wavelength_nm": meta.get("wavelength_nm"), "wavelength_index": meta.get("wavelength_index"),
+                     "content_sha256": meta.get("content_sha256"),
+                     "size_bytes": _tree_bytes(Path(data_dir) / "datasets" / did), "created": row["created"],
+                     "last_used": max(float(meta.get("last_used") or 0.0), row["created"]),
+                     "jobs": users.get(did, []), "in_use": did in active}, float(row["used_mono"])))
     return out
 
 
@@ -505,7 +511,9 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
     goes; then, beyond ``datasets_keep_bytes``, the least recently used go first (used:
     uploaded, or uploaded again and answered by deduplication) until the rest fit; the most
     recently used is never removed for its bytes. A dataset an active job reads is kept (and
-    still counts towards the bytes).
+    still counts towards the bytes). Ages and the order of use are on the store's time
+    (``JobStore.monotonic``, :mod:`fpscan.service.jobs.store.clock`), not the wall clock: a
+    clock set forward by ``datasets_max_age_s`` deletes nothing.
 
     Parameters
     ----------
@@ -516,27 +524,26 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
     policy : dict or None, optional
         The policy (:func:`get_retention`'s dict); default None: the one in force.
     now : float or None, optional
-        The current time in UNIX s; default None: ``time.time()``.
+        The store's time now, s; default None: ``store.monotonic()``.
 
     Returns
     -------
     list of str
         The deleted datasets' ids.
     """
-    import time
-
     policy = policy or get_retention(store, settings)
     max_age, keep_bytes = policy.get("datasets_max_age_s"), policy.get("datasets_keep_bytes")
     if max_age is None and keep_bytes is None:
         return []
-    now = time.time() if now is None else now
-    rows = sorted(list_datasets(store, settings.data_dir), key=lambda r: (r["last_used"], r["created"]))
+    now = store.monotonic() if now is None else now
+    listed = sorted(_datasets(store, settings.data_dir), key=lambda pair: pair[1])  # stable: as stored on ties
+    rows = [r for r, _ in listed]
     victims: list[str] = []
     total = sum(r["size_bytes"] for r in rows)
-    for i, r in enumerate(rows):  # least recently used first
+    for i, (r, used) in enumerate(listed):  # least recently used first
         if r["in_use"]:
             continue
-        too_old = max_age is not None and now - r["last_used"] > max_age
+        too_old = max_age is not None and now - used > max_age
         # the most recently used is kept for the bytes: it was just uploaded (or asked for
         # again), to be reconstructed
         too_much = keep_bytes is not None and total > keep_bytes and i < len(rows) - 1
@@ -785,8 +792,5 @@ def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]
     out: dict[str, int | None] = {f"{k}_bytes": v for k, v in sizes.items()}
     out["other_bytes"] = other  # the database, plans, logs
     out["total_bytes"] = other + sum(sizes.values())
-    try:
-        out["free_bytes"] = shutil.disk_usage(data if data.exists() else data.parent).free
-    except OSError:
-        out["free_bytes"] = None
+    out["free_bytes"] = free_bytes(data if data.exists() else data.parent)
     return out

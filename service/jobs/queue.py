@@ -36,8 +36,10 @@ are flushed (``fpscan.service.disk.fsync_tree``) before the commit that says ``s
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import sqlite3
+import stat
 import threading
 import time
 import uuid
@@ -45,7 +47,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from fpscan.service.disk import durable_mkdir, fsync_tree, is_disk_full
+from fpscan.service.disk import durable_mkdir, free_bytes, fsync_tree, is_disk_full
 from fpscan.service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
 from fpscan.service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
 from fpscan.service.jobs.lifecycle import apply_retention
@@ -80,11 +82,15 @@ INCOMING = "incoming"
 def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     """Remove what a crash leaves behind and nothing else can.
 
-    That is: temporary result folders (``results/*.tmp-*``), progress and cancel files
+    That is: fpscan's temporary files and folders at any depth of ``results/`` and
+    ``exports/`` (the names its writers give them, ``fpscan.service.disk.is_temp_name``: a
+    result folder being written, ``results/<id>.tmp-<pid>-<ns>``; a file or an export's folder
+    being written beside its target, ``.<name>.<pid>.<12 hex>.tmp``, also inside a result
+    folder or inside another temporary folder), progress and cancel files
     (``results/.*.progress*``, ``results/.*.cancel``) and partial uploads (``incoming/<id>/``,
     where an upload is staged until it is stored, and ``datasets/<id>/`` still holding
-    ``upload.bin``, as earlier versions staged them). A path that is gone meanwhile or cannot
-    be removed is skipped (no error).
+    ``upload.bin``, as earlier versions staged them). Symbolic links are not followed. A path
+    that is gone meanwhile or cannot be removed is skipped (no error).
 
     Parameters
     ----------
@@ -98,12 +104,20 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     list of str
         The names (last path component) of the files and folders removed.
     """
+    from fpscan.service.disk import is_temp_name
+
     data_dir = Path(data_dir)
     candidates = []
     results = data_dir / "results"
     if results.is_dir():
-        candidates += [p for p in results.iterdir() if ".tmp-" in p.name
-                       or (p.name.startswith(".") and (".progress" in p.name or p.name.endswith(".cancel")))]
+        candidates += [p for p in results.iterdir() if p.name.startswith(".")
+                       and (".progress" in p.name or p.name.endswith(".cancel"))]
+    for top in (results, data_dir / "exports"):
+        if top.is_dir() and not top.is_symlink():
+            for folder, dirs, files in os.walk(top, onerror=lambda _: None):
+                temps = [name for name in dirs if is_temp_name(name)]
+                dirs[:] = [name for name in dirs if name not in temps]  # not walked: removed whole
+                candidates += [Path(folder) / name for name in temps + files if is_temp_name(name)]
     datasets = data_dir / "datasets"
     if datasets.is_dir():
         candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()]
@@ -113,9 +127,10 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     removed = []
     for p in candidates:
         try:
-            if p.stat().st_mtime >= older_than:
+            st = p.lstat()
+            if st.st_mtime >= older_than:
                 continue
-            if p.is_dir():
+            if stat.S_ISDIR(st.st_mode):
                 shutil.rmtree(p)
             else:
                 p.unlink()
@@ -247,9 +262,8 @@ class ReconQueue:
     def _free_bytes(self) -> int | None:
         """Free bytes of the results' disk for results: less the job database's reserve
         while it is spent (those bytes are the database's, for the jobs' states)."""
-        try:
-            free = shutil.disk_usage(self.results_dir).free
-        except OSError:
+        free = free_bytes(self.results_dir)
+        if free is None:
             return None
         return max(0, free - (self.store.reserve_bytes if self.store.reserve_spent is not None else 0))
 

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from fpscan.service.disk import durable_mkdir, fsync_tree, is_disk_full
+from fpscan.service.disk import durable_mkdir, free_bytes, fsync_tree, is_disk_full
 from fpscan.service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
 from fpscan.service.jobs.preview import PreviewManager, PreviewState
 from fpscan.service.jobs.store import TERMINAL, JobStore
@@ -167,18 +167,13 @@ class ScanManager:
         for ``/api/health``. A full disk is judged now, not when the scan stopped: once at
         least ``DISK_FREED_BYTES`` more are free on the data folder's disk than then, the line
         says the space is back and the scan waits for a resume (no stale "disk is full")."""
-        import shutil
-
         with self._lock:
             items = list(self._problems.items())
             free_then = dict(self._free_at_interrupt)
         out = []
         for jid, why in items:
             if jid in free_then and ("disk full" in why or "disk is full" in why):
-                try:
-                    free_now = shutil.disk_usage(self.settings.data_dir).free
-                except OSError:
-                    free_now = None
+                free_now = free_bytes(self.settings.data_dir)
                 if free_now is not None and free_now >= free_then[jid] + DISK_FREED_BYTES:
                     why = "paused by a full disk; space has been freed since: resume it"
             out.append(f"scan {jid}: {why}")
@@ -292,14 +287,10 @@ class ScanManager:
         scan file with ``/resume``: the points on disk are kept). While the job store
         itself cannot write (its disk is full too), retried every second, the reason shown
         by ``/api/health`` meanwhile, so the job never stays ``running``."""
-        import shutil
         import sqlite3
 
         why = _one_line(why)
-        try:
-            free = shutil.disk_usage(self.settings.data_dir).free
-        except OSError:
-            free = None
+        free = free_bytes(self.settings.data_dir)
         with self._lock:
             self._problems[jid] = why
             if free is not None:
@@ -323,8 +314,6 @@ class ScanManager:
         """Resume the scans a full disk paused once their scan file fits again (the disk
         watch's tick): its remaining A-lines fit the free disk (:meth:`_disk_shortfall`) and
         at least ``DISK_FREED_BYTES`` more are free than when it stopped."""
-        import shutil
-
         with self._lock:
             waiting = [(jid, free) for jid, free in self._free_at_interrupt.items()
                        if "disk full" in self._problems.get(jid, "") or "disk is full" in self._problems.get(jid, "")]
@@ -341,9 +330,8 @@ class ScanManager:
             if found is None:
                 continue
             scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
-            try:
-                free_now = shutil.disk_usage(self.settings.data_dir).free
-            except OSError:
+            free_now = free_bytes(self.settings.data_dir)
+            if free_now is None:
                 continue
             if free_now >= free_then + DISK_FREED_BYTES and self._disk_shortfall(found[0], scan_path) is None:
                 log.info("scan job=%s: the disk has room again (%d bytes free); resuming", jid, free_now)
@@ -354,15 +342,15 @@ class ScanManager:
         its remaining A-lines need: ``n_points × (2 n_t × n_wavelengths + 128)`` bytes
         less what the file has allocated), or None. The job database's reserve, while it
         is spent (a full disk), does not count as free: it holds the jobs' states."""
-        import shutil
-
         acq = plan["acquisition"]
         n = len(plan["points"]["indices"])
         need = n * (2 * int(acq["n_t"]) * max(1, len(acq.get("wavelengths") or [1])) + 128) + (1 << 20)
         try:
             have = scan_path.stat().st_blocks * 512 if scan_path.exists() else 0
-            free = shutil.disk_usage(scan_path.parent).free
         except OSError:
+            return None
+        free = free_bytes(scan_path.parent)
+        if free is None:
             return None
         if self.store.reserve_spent is not None:
             free = max(0, free - self.store.reserve_bytes)

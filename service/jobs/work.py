@@ -89,8 +89,12 @@ def progress_file(path: str | None) -> Progress:
     """The :data:`fpscan.service.progress.Progress` that writes to the job's progress file ``path``.
 
     Each report goes through :func:`report_stage`; a report equal to the previous one is not
-    written again. Each line also carries, where known, the time left ``eta_s``
-    (``fpscan.service.progress.Eta``) and an iterative method's iteration, its limit and its
+    written again, unless the ETA it showed has run out meanwhile (then once more, with
+    ``eta_s`` null). Each line carries ``elapsed_s``, the seconds since the callback was made
+    (the worker's clock: a line's ``elapsed_s + eta_s`` is the end it predicts), and, where
+    known, the time left ``eta_s`` (``fpscan.service.progress.Eta``; an iterative method's with
+    ``iterations_left_max``, the iterations left at most, its bound, ``eta_max_s``, their time
+    at the measured rate, and ``eta_basis``) and an iterative method's iteration, its limit and its
     stopping rule's value and tolerance (``fpscan.service.progress.iteration_fields`` of an
     ``IterationStage``); a field a line no longer knows is written as null, since the job's
     progress merges the lines.
@@ -105,26 +109,39 @@ def progress_file(path: str | None) -> Progress:
     Progress
         The callback ``progress(fraction, stage)``.
     """
+    import time
+
     from fpscan.service.progress import Eta, IterationStage, iteration_fields
 
     last: tuple[float, str] | None = None
     eta = Eta()
     before: set[str] = set()
+    written: dict[str, Any] = {}  # the last line's fields
+    started = time.monotonic()
 
     def write(fraction: float, stage: str) -> None:
-        nonlocal last, before
+        nonlocal last, before, written
         if last == (fraction, stage):
+            # a repeat (a poll inside a long step): written again only when the ETA it showed has
+            # run out meanwhile (fpscan.service.progress.Countdown), so that no stale figure stays
+            if written.get("eta_s") is None or eta.read() is not None:
+                return
+            written = {**written, "eta_s": None, "elapsed_s": round(time.monotonic() - started, 2)}
+            report_stage(path, stage, fraction, **written)
             return
         last = (fraction, stage)
         fields: dict[str, Any] = iteration_fields(stage) if isinstance(stage, IterationStage) else {}
         seconds = eta(fraction, stage)
         if seconds is not None:
             fields["eta_s"] = round(seconds, 1)
-            if eta.bound_s is not None:  # an iterative method's: an estimate, bounded by its iteration limit
-                fields.update(eta_max_s=round(eta.bound_s, 1), eta_basis=eta.basis)
+            if eta.bound_iterations is not None:  # an iterative method's: an estimate, and its bound in iterations
+                fields.update(iterations_left_max=eta.bound_iterations, eta_max_s=round(eta.limit_s or 0.0, 1),
+                              eta_basis=eta.basis)
         known = set(fields)
         fields.update(dict.fromkeys(before - known))  # cleared, not left stale in the merged progress
         before = known
+        fields["elapsed_s"] = round(time.monotonic() - started, 2)
+        written = fields
         report_stage(path, stage, fraction, **fields)
 
     return write

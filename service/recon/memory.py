@@ -319,7 +319,8 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     image of its own (so that the k-space is free for the next application however long the
     solver keeps it: the operator's arrays are kept between applications,
     `fpscan.physics.workspace`), the last preconditioned
-    gradient and the last move in int16 (`fpscan.service.recon.tv.stores.store_gradient`, ``store_move``)
+    gradient, the last move and, in the solver's exact phase, the last proximal step's s in int16
+    (`fpscan.service.recon.tv.stores.store_gradient`, ``store_move``; `fpscan.service.recon.tv.fista`)
     and the TV proximal map's dual (d vectors) at half those bytes
     (`fpscan.service.recon.tv.stores.store_dual`), beside the operator's working arrays in its working
     precision (complex64 for float32, complex128 for float64;
@@ -330,8 +331,8 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     longer: the steps hold two of them at a time) and one batch of full lateral spectra of
     the point NUFFTs. While the proximal map works: 2 + d + d/2 vectors (the gradient step,
     the preconditioned gradient, the dual at full precision beside the stored one,
-    `fpscan.service.recon.tv.prox.tv_prox_stored`) and the move in int16, beside the operator's
-    arrays (kept for its next application). The
+    `fpscan.service.recon.tv.prox.tv_prox_stored`), the move and, in the exact phase, the gradient
+    kept for the next gain test in int16, beside the operator's arrays (kept for its next application). The
     preconditioner P is computed where it is applied, on the image padded to fast lengths
     after the operator's k-space is free again. Both phases add the data-sized vectors (the data
     in float64, A x, A y and a residual in ``dtype``), and the estimate 10 % (allocator, FFT
@@ -380,10 +381,11 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
                         + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
-    # y (or the new iterate), the adjoint's image, the stored dual, the last gradient and the last
-    # move as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
-    with_operator = 2 * n_img * b + d * n_img * b // 2 + 2 * 2 * n_img + operator
-    # the gradient step, G(A y − g), the move, the dual at full precision beside the stored one, beside
-    # the operator's arrays, which the work-array pool keeps for the next application
-    proximal = 2 * n_img * b + 2 * n_img + d * n_img * b + d * n_img * b // 2 + operator
+    # y (or the new iterate), the adjoint's image, the stored dual, the last gradient, the last move and
+    # (in the exact phase) the last proximal step's s as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
+    with_operator = 2 * n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator
+    # the gradient step, G(A y − g), the move and (in the exact phase) the gradient kept for the next gain
+    # test as int16, the dual at full precision beside the stored one, beside the operator's arrays,
+    # which the work-array pool keeps for the next application
+    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2 + operator
     return int(1.10 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))

@@ -43,6 +43,7 @@ from fpscan.service.progress import Fraction, Rising, Span, rising
 from fpscan.service.progress import span as span_of
 from fpscan.service.recon import checks, memory
 from fpscan.service.recon import device as devices
+from fpscan.service.recon.depth import depth_grid
 from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points", "depth_axis", "default_grid", "check_grid"]
@@ -55,13 +56,16 @@ _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cu
 
 
 def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
-                t0: float) -> tuple[float, int, int]:
+               t0: float, pitch: float | None = None) -> tuple[float, int, int]:
     """The output depth grid and the working depth count of a record.
 
-    The working count also reaches the depth c t of the last sample, so that no recorded signal
-    folds back into the image through the periodicity of the depth transform (period
-    2 (n_work - 1) dz), rounded up so that the depth transform runs at a fast FFT length (more
-    rows than needed only lengthen the period; the rows asked for are cropped).
+    The output grid is the one rule of every method (`fpscan.service.recon.depth.depth_grid`:
+    the lateral ``pitch`` unless ``dz`` is given, c dt where the pitch is finer; the rows down
+    to c t_last unless ``n_z`` is given). The working count also reaches the depth c t of the
+    last sample, so that no recorded signal folds back into the image through the periodicity
+    of the depth transform (period 2 (n_work - 1) dz), rounded up so that the depth transform
+    runs at a fast FFT length (more rows than needed only lengthen the period; the rows asked
+    for are cropped).
 
     Parameters
     ----------
@@ -72,11 +76,14 @@ def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
     c : float
         Sound speed, m/s.
     dz : float or None
-        Depth spacing, m (None: c dt).
+        Depth spacing, m (None: the default spacing).
     n_z : int or None
-        Output depth samples (None: n_t).
+        Output depth samples (None: down to c t_last).
     t0 : float
         Time of sample 0, s.
+    pitch : float, optional
+        The lateral pitch of the image's lattice, m (None: not known; the default spacing is
+        then c dt).
 
     Returns
     -------
@@ -92,13 +99,14 @@ def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
     Examples
     --------
     >>> from fpscan.service.recon.planar import depth_axis
-    >>> depth_axis(256, 4e-8, 1500.0, None, None, 0.0)  # c dt, n_t, and rows that reach c t_last
+    >>> depth_axis(256, 4e-8, 1500.0, None, None, 0.0, pitch=1e-4)  # the pitch, down to c t_last
+    (0.0001, 154, 161)
+    >>> depth_axis(256, 4e-8, 1500.0, None, None, 0.0)  # no pitch: c dt, n_t rows
     (6e-05, 256, 257)
     >>> depth_axis(256, 4e-8, 1500.0, 1.5e-4, 8, 0.0)[2]  # 8 rows asked, 109 worked on (a fast length)
     109
     """
-    dz = c * dt if dz is None else checks.check_dz(dz)
-    n_z = n_t if n_z is None else checks.check_n_z(n_z)
+    dz, n_z = depth_grid(n_t, dt, c, pitch, dz=dz, n_z=n_z, t0=t0)
     rows = c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12)
     if not rows < 2**31:  # also inf (dz = 5e-324): refused before int() overflows
         raise ValueError(f"dz = {dz:g} m is too fine for this recording: the depth transform would need "
@@ -118,7 +126,7 @@ def _temporal_length(n_t: int, method: str, eps: float) -> int:
 
 def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0, *, method: str = "ner",
                       eps: float = 1e-6, dz: float | None = None, n_z: int | None = None, t0: float = 0.0,
-                      upsample: int = 1, square: bool = True) -> dict[str, tuple[int, ...]]:
+                      upsample: int = 1, square: bool = True, pitch: float | None = None) -> dict[str, tuple[int, ...]]:
     """The FFT lengths `reconstruct_grid` runs for data of a given shape.
 
     Also those of `reconstruct_points` for a lattice of (n_y, n_x) grid nodes; the
@@ -136,6 +144,8 @@ def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0
         As `reconstruct_grid` (dz in m, t0 in s).
     square : bool, optional
         dy = dx (default True).
+    pitch : float, optional
+        The lateral pitch dx, m: the default depth spacing (`depth_axis`; None: c dt).
 
     Returns
     -------
@@ -163,7 +173,7 @@ def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0
     dt, c, eps, _, upsample, t0 = _check_options(dt, c, method, eps, np.float64, upsample, t0)
     n_t = shape[0]
     n_y, n_x = (1, shape[1]) if len(shape) == 2 else shape[1:]
-    _, _, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
+    _, _, n_work = depth_axis(n_t, dt, c, dz, n_z, t0, pitch)
     n_yp, n_xp = fast_lateral(n_y, n_x, square=square)
     lat = (n_xp,) if n_y == 1 else (n_yp, n_xp)
     return {"lateral": lat, "temporal": (_temporal_length(n_t, method, eps),), "depth": (2 * (n_work - 1),),
@@ -367,9 +377,10 @@ def reconstruct_grid(
     dtype : float32 or float64, optional
         Output dtype and working precision of the FFTs.
     dz : float, optional
-        Output depth spacing, m (default c dt).
+        Output depth spacing, m (default the lateral pitch ``dx``, or c dt where that is
+        finer: `fpscan.service.recon.depth.depth_grid`).
     n_z : int, optional
-        Output depth samples, >= 2 (default n_t).
+        Output depth samples, >= 2 (default: down to the depth c t_last the last sample reaches).
     upsample : int, optional
         Lateral upsampling factor 1..8 of the output grid (trigonometric interpolation; the
         paper uses 2).
@@ -447,7 +458,7 @@ def reconstruct_grid(
     n_t = data.shape[0]
     if n_t < 2:
         raise ValueError(f"data needs at least 2 time samples, got {n_t}")
-    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0, pitch=dx)  # the one depth rule (fpscan.service.recon.depth)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
     n_yp, n_xp = fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
@@ -801,7 +812,7 @@ def reconstruct_points(
         max(eps, 2e-5), the tightest single precision honours without FINUFFT shrinking its
         kernel (relative image error ~1e-5).
     eps, dz, n_z, upsample, positivity, t0, memory_limit
-        As `reconstruct_grid`.
+        As `reconstruct_grid` (the default depth spacing: the output grid's pitch along x).
     progress : callable, optional
         As `reconstruct_grid` (the type-1 NUFFT reports in chunks of time samples).
     device : {"auto", "cpu", "cuda"}, optional
@@ -850,9 +861,9 @@ def reconstruct_points(
         pos = _check_positions(positions, n_points)
     d = pos.shape[1]
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
-    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     with step("positions"):
         axes, steps = _output_grid(pos, grid)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0, pitch=steps[0])  # the lattice's pitch: the depth rule's
     with step("weights"):
         h = _area_weights(weights, pos)
     n_x_out = len(axes[0])

@@ -34,7 +34,6 @@ format: drawing the MIPs (:func:`write_result`) and zipping.
 from __future__ import annotations
 
 import os
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -102,9 +101,10 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
 def zip_folder(folder: str | os.PathLike, out_path: str | os.PathLike, *, arcname: str | None = None) -> Path:
     """Zip ``folder`` (e.g. an OME-Zarr export) into ``out_path``.
 
-    The files are stored uncompressed (float data barely compresses), written to a
-    temporary sibling, then renamed over ``out_path`` (the temporary file is removed on
-    failure).
+    The files are stored uncompressed (float data barely compresses), each copied in
+    pieces (``zipfile``), written to a temporary sibling, then renamed over ``out_path``
+    (``fpscan.service.disk.file_replaced``: the temporary file is removed on failure).
+    Symbolic links in ``folder`` are left out.
 
     Parameters
     ----------
@@ -122,16 +122,12 @@ def zip_folder(folder: str | os.PathLike, out_path: str | os.PathLike, *, arcnam
     """
     import zipfile
 
+    from fpscan.service.disk import file_replaced
+
     folder, out_path = Path(folder), Path(out_path)
     arcname = arcname or folder.name
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
-    try:
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
-            for p in sorted(folder.rglob("*")):
-                if p.is_file():
-                    z.write(p, f"{arcname}/{p.relative_to(folder).as_posix()}")
-        os.replace(tmp, out_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with file_replaced(out_path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
+        for p in sorted(folder.rglob("*")):
+            if p.is_file() and not p.is_symlink():
+                z.write(p, f"{arcname}/{p.relative_to(folder).as_posix()}")
     return out_path

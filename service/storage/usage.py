@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -258,10 +257,9 @@ class DiskUsage:
             The free bytes (of the data folder's parent while the folder does not exist);
             None when they cannot be read.
         """
-        try:
-            return shutil.disk_usage(self.data_dir if self.data_dir.exists() else self.data_dir.parent).free
-        except OSError:
-            return None
+        from fpscan.service.disk import free_bytes
+
+        return free_bytes(self.data_dir if self.data_dir.exists() else self.data_dir.parent)
 
     def _database_files(self) -> list[Path]:
         """The job database's files that lie in the data folder itself (``other``)."""

@@ -15,7 +15,10 @@ __all__ = ["QUIET", "clean_env", "fpscan_server", "fpscan_sim", "free_port", "ha
 #: every method's kernels in both precisions in the background, 9.7 s of CPU against 1.9 s, on the
 #: 2-core machine the other test worker shares; a job loads what it needs itself, and the plan and
 #: live-preview workers start at their first use. The README's recipes and the demo keep the defaults.
-QUIET = {"FPSCAN_WARM_UP": "false"}
+#: The tests' tokens are short names (``"cli-test-token"``) that ``fpscan serve`` refuses as weak by
+#: itself: allowed here (``Settings.allow_weak_token``); the refusal is tested in
+#: tests/service/test_browser_security.py.
+QUIET = {"FPSCAN_WARM_UP": "false", "FPSCAN_ALLOW_WEAK_TOKEN": "true"}
 
 
 def has_command(name: str) -> bool:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
 import shlex
 import shutil
 import signal
@@ -382,7 +383,7 @@ def test_installed_wheel_is_used(image_install):
     # a reconstruction (NER of one point source) and the command line, from the install
     code = ("import numpy as np, fpscan; d = np.zeros((64, 8, 8)); d[20, 4, 4] = 1.0; "
             "ds = fpscan.GridDataset(data=d, dx=1e-4, dy=1e-4, dt=2e-8, sound_speed=1500.0); "
-            "r = fpscan.reconstruct(ds, 'ner'); print(r.p0.shape, np.isfinite(r.p0).all(), r.p0.max() > 0)")
+            "r = fpscan.reconstruct(ds, 'ner', dz=3e-5); print(r.p0.shape, np.isfinite(r.p0).all(), r.p0.max() > 0)")
     res = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == ["(64,", "8,", "8)", "True", "True"], res.stdout
@@ -414,7 +415,8 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
     env["FPSCAN_PORT"] = str(port)
     # the token from a file, as a Docker secret is mounted (FPSCAN_TOKEN_FILE)
     secret = image_install["cwd"].parent / "fpscan_token"
-    secret.write_text("docker-test-token\n")
+    token = secrets.token_urlsafe(32)  # fpscan serve refuses a guessable one
+    secret.write_text(token + "\n")
     env.pop("FPSCAN_TOKEN", None)
     env["FPSCAN_TOKEN_FILE"] = str(secret)
     ins = image_install["ins"]
@@ -434,12 +436,12 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
         # the installed wheel carries the web page (package data)
         import httpx
 
-        page = httpx.get(f"http://127.0.0.1:{port}/", headers={"Authorization": "Bearer docker-test-token"})
+        page = httpx.get(f"http://127.0.0.1:{port}/", headers={"Authorization": f"Bearer {token}"})
         assert page.status_code == 200 and "text/html" in page.headers["content-type"]
         # the token from the file is in force (a mutating request without it: 401)
         assert httpx.put(f"http://127.0.0.1:{port}/api/retention", json={}).status_code == 401
         assert httpx.put(f"http://127.0.0.1:{port}/api/retention", json={},
-                         headers={"Authorization": "Bearer docker-test-token"}).status_code == 200
+                         headers={"Authorization": f"Bearer {token}"}).status_code == 200
         # the database lives in the data volume
         assert any(image_install["cwd"].iterdir())
         # and the health check fails once the server is gone

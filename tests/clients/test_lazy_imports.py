@@ -102,13 +102,13 @@ from fpscan.service.recon import reconstruct_grid, reconstruct_points
 import numpy as np
 data = np.zeros((32, 8, 8), dtype=np.float32)
 data[3, 2, 2] = 1.0
-tiny = reconstruct_grid(data, 1e-4, 2e-8)
+tiny = reconstruct_grid(data, 1e-4, 2e-8, dz=3e-5)  # n_t rows of c dt
 rng = np.random.default_rng(0)
 pos = rng.uniform(0.0, 7e-4, (40, 2))
 reconstruct_points(rng.standard_normal((40, 32)), pos, 2e-8, weights=np.full(40, 1e-8),
                    grid=(np.arange(8) * 1e-4, np.arange(8) * 1e-4))
 after_tiny = sorted(sys.modules)
-rec = reconstruct_grid(np.zeros((64, 48, 48)), 1e-4, 2e-8)
+rec = reconstruct_grid(np.zeros((64, 48, 48)), 1e-4, 2e-8, dz=3e-5)
 print(json.dumps({"light": light, "tiny": after_tiny, "after": sorted(sys.modules),
                   "shape": [list(tiny.p0.shape), list(rec.p0.shape)]}))
 '''

@@ -20,6 +20,8 @@ from tests.waits import HANG_S
 
 TOKEN = "mat-token"
 N_T, N_Y, N_X, DX, DY, DT, C = 40, 6, 8, 1e-4, 2e-4, 4e-8, 1500.0
+#: NER's default depth rows (fpscan.service.recon.depth): the pitch DX down to c·t_last = 2.34 mm
+N_Z = int(C * (N_T - 1) * DT / DX) + 1
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -73,7 +75,7 @@ def test_mat_export_library_cli_and_server(server, tmp_path):
     volume = _volume(tmp_path, (N_T, N_Y, N_X))
     assert "mat" in fpscan.export_formats()
     got = _check(fpscan.export_file(volume, tmp_path / "lib.mat", "mat"), volume)
-    assert got["p0"].shape == (N_T, N_Y, N_X)  # NER: n_z = n_t; (Nx, Ny, Nz) = (n_z, n_y, n_x)
+    assert got["p0"].shape == (N_Z, N_Y, N_X)  # (Nx, Ny, Nz) = (n_z, n_y, n_x)
 
     # fpscan's own k-Wave MAT reader: detected, p0 read back as saved, refused as a scan
     from fpscan.service.formats import detect, open_source
@@ -114,7 +116,7 @@ def test_mat_export_2d_layout(tmp_path):
 
     volume = _volume(tmp_path, (N_T, N_X))
     got = _check(fpscan.export_file(volume, tmp_path / "p0.mat", "mat"), volume)
-    assert got["p0"].shape == (N_T, N_X)  # k-Wave (Nx, Ny): x the depth, y fpscan's lateral x
+    assert got["p0"].shape == (N_Z, N_X)  # k-Wave (Nx, Ny): x the depth, y fpscan's lateral x
 
 
 def test_mat_export_refuses_beyond_the_mat_v5_limit(tmp_path):
@@ -136,4 +138,4 @@ def test_octave_loads_the_mat_export(tmp_path):
     done = subprocess.run(["octave", "--no-gui", "--quiet", "--eval", "load('p0.mat'); disp(size(p0)); disp(size(z))"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == [str(N_T), str(N_Y), str(N_X), str(N_X), "1"], done.stdout
+    assert done.stdout.split() == [str(N_Z), str(N_Y), str(N_X), str(N_X), "1"], done.stdout

@@ -42,6 +42,19 @@ def _serve(data_dir, port: int, **env: str) -> subprocess.CompletedProcess:
             proc.wait(timeout=HANG_S)
 
 
+def _scanning(api: Client) -> str:
+    """Start a scan of N x N points at 40 Hz on the device ``sim`` (256 points: over six seconds,
+    time for a second server's refusal) and return its job id once it has measured a point."""
+    plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                            "points": [[i, j] for j in range(N) for i in range(N)],
+                            "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 40}})
+    job = api.start_scan(plan.id, "sim")
+    for event, body, _ in api.events(job):  # until the scan has measured a point
+        if event == "progress" and (body.get("points_done") or 0) > 0:
+            break
+    return job
+
+
 def _one_line(res: subprocess.CompletedProcess) -> str:
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 1 and len(lines) == 1 and not res.stdout.strip(), (res.returncode, res.stderr)
@@ -59,14 +72,7 @@ def test_a_second_server_on_a_live_folder_is_refused_and_the_lock_dies_with_its_
                               log_path=tmp_path / "first.log")
         try:
             with Client(first.url, token=TOKEN) as api:
-                # 256 points at 40 Hz: over six seconds of scanning, the second server's refusal in them
-                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
-                                        "points": [[i, j] for j in range(N) for i in range(N)],
-                                        "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 40}})
-                job = api.start_scan(plan.id, "sim")
-                for event, body, _ in api.events(job):  # until the scan has measured a point
-                    if event == "progress" and (body.get("points_done") or 0) > 0:
-                        break
+                job = _scanning(api)
                 line = _one_line(_serve(data, free_port()))
                 assert f"pid {first.pid}" in line and "in use by another fpscan server" in line, line
                 assert api.get_job(job).state == "running"
@@ -98,13 +104,7 @@ def test_a_second_server_on_the_job_database_of_a_live_one_is_refused(tmp_path):
                               env={**QUIET, "FPSCAN_DB_PATH": str(db)}, log_path=tmp_path / "first.log")
         try:
             with Client(first.url, token=TOKEN) as api:
-                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
-                                        "points": [[i, j] for j in range(N) for i in range(N)],
-                                        "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 40}})
-                job = api.start_scan(plan.id, "sim")
-                for event, body, _ in api.events(job):  # until the scan has measured a point
-                    if event == "progress" and (body.get("points_done") or 0) > 0:
-                        break
+                job = _scanning(api)
                 line = _one_line(_serve(tmp_path / "second", free_port(), FPSCAN_DB_PATH=str(db)))
                 assert f"pid {first.pid}" in line and f"{db}.lock" in line and "job database" in line, line
                 assert api.get_job(job).state == "running"

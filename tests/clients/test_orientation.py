@@ -25,6 +25,8 @@ import pytest
 
 TOKEN = "orientation-token"
 N, DX, DT, N_T, C = 16, 1e-4, 4e-8, 96, 1500.0
+#: the default depth rows (fpscan.service.recon.depth): the pitch down to c·t_last = 5.7 mm
+N_Z = int(C * (N_T - 1) * DT / DX) + 1
 BALL = (0.45e-3, 0.3e-3, 1.0e-3)  # x, y, z (m): right of and below the centre, shallow
 WANT_XY, WANT_XZ = "bottom-right", "top-right"
 
@@ -170,7 +172,7 @@ def test_one_orientation_in_every_path(server, tmp_path):
     # ome-zarr's reader: shape, axes in micrometer, scale = voxel size in µm, translation
     # = the first sample's position in µm; the same numbers as the HDF5 volume
     print("ome-zarr Reader:", arr.shape, meta["axes"], meta["coordinateTransformations"][0])
-    assert arr.shape == p0.shape == (N_T, N, N)
+    assert arr.shape == p0.shape == (N_Z, N, N)
     np.testing.assert_array_equal(arr, p0.astype(np.float32))
     assert [a["name"] for a in meta["axes"]] == ["z", "y", "x"]
     assert {a.get("unit") for a in meta["axes"]} == {"micrometer"}
@@ -253,7 +255,7 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
                            "--job", job, "--format", "ome-zarr", "-o", str(out)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == str(out), done.stderr
-    assert _zarr_read(out)[0].shape == (N_T, N, N)
+    assert _zarr_read(out)[0].shape == (N_Z, N, N)
     # the same read access as the OME-TIFF beside it
     tif = url.replace("ome-zarr", "ome-tiff")
     assert httpx.get(url, timeout=10).status_code == httpx.get(tif, timeout=10).status_code

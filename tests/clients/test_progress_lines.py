@@ -169,8 +169,8 @@ def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate()
 
 def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
     """Iterations of 10 ms near the limit: the smoothing's floor (half of at least a second)
-    never lifts the estimate above :attr:`Eta.bound_s`, the time the iterations left can take
-    (a server tv job showed ``eta_s`` 0.5 beside ``eta_max_s`` 0.3)."""
+    never lifts the estimate above :attr:`Eta.limit_s`, the time the iterations left take at the
+    measured rate (a server tv job showed ``eta_s`` 0.5 beside ``eta_max_s`` 0.3)."""
     from fpscan.service.progress import Eta, IterationStage
 
     now, n = [0.0], 20
@@ -181,15 +181,17 @@ def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
         e = eta(k / n, IterationStage(k, n, rule=0.5, tol=5e-3))
         if e is not None:
             seen += 1
-            assert 0 <= e <= eta.bound_s == pytest.approx((n - k) * 0.01), (k, e, eta.bound_s)
+            assert 0 <= e <= eta.limit_s == pytest.approx((n - k) * 0.01), (k, e, eta.limit_s)
+            assert eta.bound_iterations == n - k
     assert seen == n - 2
 
 
 def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit():
     """An image change falling geometrically (tenfold every 5 iterations) reaches
     the tolerance at an iteration the oracle computes (log(tol/value)/log(q)); the ETA is that
-    many iterations x the measured time per iteration, labelled an estimate, with the time to
-    the iteration limit as its bound; the line shows the tolerance (also while λ falls)."""
+    many iterations x the measured time per iteration, labelled an estimate, with the iterations
+    left to the iteration limit as its bound; the line shows the tolerance (also while λ falls,
+    with the iteration from which the rule can stop)."""
     import math
 
     from fpscan.clients.cli.common import describe_progress
@@ -203,17 +205,19 @@ def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit
         e = eta(k / n, stage)
     to_rule = math.log(tol / (0.5 * q ** 10)) / math.log(q)  # 3.5 iterations after iteration 10
     assert e == pytest.approx(to_rule * 2.0, rel=1e-6) and eta.basis == "stopping rule"
-    assert eta.bound_s == pytest.approx((n - 10) * 2.0)
-    line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.bound_s})
+    assert eta.bound_iterations == n - 10 and eta.limit_s == pytest.approx((n - 10) * 2.0)
+    line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.limit_s,
+                              "iterations_left_max": eta.bound_iterations, "eta_basis": eta.basis})
     assert "image change 0.005 (stops below 0.001)" in line, line
-    assert "ETA ~00:07 (estimate: stopping rule; at most 03:00 at the iteration limit)" in line, line
+    assert "ETA ~00:07 (estimate: stopping rule; at most 90 more iterations, ~03:00 at the current rate)" in line, line
     from fpscan.service.recon.methods import get
 
     waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False,  # tv while λ still falls: its words
-                             waits_for=get("tv").stop_waits_for)
+                             waits_for=get("tv").stop_waits_for, armed_at=53)
     fields = iteration_fields(waiting)
-    assert fields["stop_tol"] == tol and fields["stop_armed"] is False
-    assert "(stops below 0.001 once λ has settled)" in describe_progress({"stage": str(waiting), **fields})
+    assert fields["stop_tol"] == tol and fields["stop_armed"] is False and fields["stop_armed_at"] == 53
+    assert "(stops below 0.001 once λ has settled, from iteration 53)" in describe_progress(
+        {"stage": str(waiting), **fields})
 
 
 def test_a_local_tv_run_ends_on_its_outcome(tmp_path):
@@ -243,3 +247,50 @@ def test_a_local_tv_run_ends_on_its_outcome(tmp_path):
     assert not any("ETA" in line for line in bar if line.startswith(("recon tv: warm start", "recon tv: norm"))), bar
     counted = [(int(m[1]), line) for line in bar if (m := re.match(r"recon tv: iteration (\d+)/30", line))]
     assert len(counted) >= 3 and all(("ETA" in line) == (k >= 3) for k, line in counted), counted
+
+
+def test_eta_counts_the_iterations_before_the_rule_can_stop():
+    """tv's λ continuation: the rule cannot stop the run before iteration 53 (``armed_at``), while
+    the image change falls below the tolerance from iteration 30 (a server tv job showed "ETA
+    ~00:01" for 26 s while waiting). At 1.3 s per iteration and the stop at 53 (the oracle: the
+    change is below tol there), every estimate from iteration 5 on puts the end within 5 % of the
+    actual end, and none is under the certain iterations' time."""
+    from fpscan.service.progress import Eta, IterationStage
+
+    now, n, tol, armed_at, step = [0.0], 100, 5e-3, 53, 1.3
+    eta = Eta(clock=lambda: now[0])
+    end = armed_at * step
+    for k in range(1, armed_at):  # the run stops at armed_at's report
+        now[0] = k * step
+        e = eta(k / n, IterationStage(k, n, rule=0.2 / k**1.2, tol=tol, armed=k >= armed_at, armed_at=armed_at))
+        if k >= 5:
+            assert e is not None and e >= (armed_at - k) * step - 1e-9, (k, e)
+            assert abs(now[0] + e - end) <= 0.05 * end, (k, e, now[0] + e, end)
+
+
+def test_an_eta_under_5_s_is_never_shown_for_5_s():
+    """A rule that keeps saying it is about to stop (its value flat just above the tolerance) while
+    iterations of 1.5 s go on: the estimate stays about one iteration; what is shown (each report's
+    and, between reports, the countdown the CLI prints) is under 5 s for less than 5 s at a
+    stretch, then nothing until an estimate of 5 s or more."""
+    from fpscan.service.progress import Eta, IterationStage
+
+    now, n = [0.0], 100
+    eta = Eta(clock=lambda: now[0])
+    shown: list[tuple[float, float | None]] = []
+    for k in range(1, 41):
+        for tick in range(15):  # the countdown every 0.1 s of the 1.5 s iteration
+            now[0] = 1.5 * (k - 1) + 0.1 * tick
+            shown.append((now[0], eta.read()))
+        now[0] = 1.5 * k
+        rule = 0.02 / k if k < 10 else 0.00505 - 1e-6 * k  # a fast fall, then flat just above tol
+        shown.append((now[0], eta(k / n, IterationStage(k, n, rule=rule, tol=5e-3))))
+    low, longest = None, 0.0
+    for t, e in shown:
+        if e is not None and e < 5:
+            low = t if low is None else low
+            longest = max(longest, t - low)
+        else:
+            low = None
+    assert any(e is not None and e < 5 for _, e in shown)  # the estimate did go under 5 s
+    assert longest < 5, longest

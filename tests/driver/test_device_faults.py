@@ -1,6 +1,7 @@
 """A scanner whose word no plan allows: one A-line frame with a good CRC, run id and boot id
-but a data sequence number far outside its run (2³¹ ahead, or 0xFFFFFFFF), or a point the plan
-does not have, is a device fault.
+but a data sequence number far outside its run (2³¹ ahead, or 0xFFFFFFFF), a point the plan
+does not have, or a field out of its documented range (docs/protocol.md §5: a ``dc_level`` of 0
+or −1, a NaN or infinite ``scale``, a ``dt`` of 0, a sample of −32 768), is a device fault.
 The scan stops with the reason (``DeviceFault``), the device is left idle, the scan file holds
 every A-line the device sent before, and a rerun completes the scan bit for bit; the host's
 memory stays within 50 MB of what it was before the scan (its bookkeeping is the plan's size,
@@ -8,7 +9,8 @@ never the size the device claims).
 
 The host runs in a child process (the simulated scanner, on a real pty, in this one): it reports
 its own resident size (``/proc/self/status``) before the scan and after the fault, and this
-process watches the child's resident size meanwhile and ends the child once it is 50 MB over,
+process watches the child's peak resident size meanwhile (``tests.rss.RssWatch``) and ends the
+child once it is 50 MB over,
 so a host that builds a list of every "missing" sequence number fails the test instead of
 taking the machine's memory.
 """
@@ -22,7 +24,6 @@ import threading
 import time
 
 import numpy as np
-import psutil
 import pytest
 
 from fpscan.driver.acquire import acquire
@@ -32,11 +33,11 @@ from fpscan.driver.simulator import SimConfig, SimulatedScanner
 from fpscan.driver.sources import BallSource
 from tests.driver.driver_helpers import grid_plan, small_phantom
 from tests.driver.test_link import assert_matches_record
+from tests.rss import MB, ROOT, RssWatch
 from tests.waits import HANG_S
 
 pytestmark = [pytest.mark.timeout(300)]
 
-MB = 2**20
 GROWTH = 50 * MB  #: the most the host's resident size may grow
 K = 40  #: the A-line before which the device's data sequence skips
 
@@ -45,16 +46,13 @@ import json, sys
 from fpscan.driver.host import DriverError, Scanner
 from fpscan.driver.plan import load_plan
 from fpscan.driver.scanfile import ScanFile
-
-def rss():
-    with open("/proc/self/status") as fh:
-        return next(int(l.split()[1]) * 1024 for l in fh if l.startswith("VmRSS"))
+from tests.rss import resident
 
 port, plan_path, out = sys.argv[1:4]
 plan = load_plan(plan_path)
 with Scanner(port) as sc:
     sink = ScanFile.create(out, plan, instrument=sc.identify(), software_version="test")
-    print("BASE", rss(), flush=True)
+    print("BASE", resident(), flush=True)
     try:
         res = sc.scan(plan, sink)
         outcome = {"error": None, "complete": res.complete}
@@ -62,7 +60,7 @@ with Scanner(port) as sc:
         outcome = {"error": type(exc).__name__, "message": str(exc)}
     finally:
         sink.close()
-    outcome["after"] = rss()
+    outcome["after"] = resident()
 print("RESULT", json.dumps(outcome), flush=True)
 """
 
@@ -70,7 +68,7 @@ print("RESULT", json.dumps(outcome), flush=True)
 def run_host(port: str, plan_path, out) -> dict:
     """Scan in a child process (``HOST``); its report, with ``base`` and ``peak`` resident sizes.
     Fails (and ends the child) once the child's resident size is ``GROWTH`` over its base."""
-    proc = subprocess.Popen([sys.executable, "-c", HOST, port, str(plan_path), str(out)],
+    proc = subprocess.Popen([sys.executable, "-c", HOST, port, str(plan_path), str(out)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: queue.Queue = queue.Queue()
 
@@ -80,6 +78,7 @@ def run_host(port: str, plan_path, out) -> dict:
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
+    watch = None
     try:
         deadline = time.monotonic() + HANG_S
         first = ""
@@ -90,23 +89,13 @@ def run_host(port: str, plan_path, out) -> dict:
                 assert proc.poll() is None, proc.stderr.read()[-3000:]  # type: ignore[union-attr]
                 assert time.monotonic() < deadline, "the host did not start"
         assert first.startswith("BASE"), first
-        base = peak = int(first.split()[1])
-        child = psutil.Process(proc.pid)
-        while proc.poll() is None:
-            try:
-                rss = child.memory_info().rss
-            except psutil.NoSuchProcess:
-                break
-            peak = max(peak, rss)
-            if rss - base > GROWTH:
-                proc.kill()
-                pytest.fail(f"the host's resident size grew from {base / MB:.0f} MB to {rss / MB:.0f} MB "
-                            "after the device fault (ended at +50 MB)")
-            assert time.monotonic() < deadline, "the host did not stop"
-            try:
-                proc.wait(timeout=0.05)
-            except subprocess.TimeoutExpired:
-                pass
+        watch = RssWatch(proc.pid, base=int(first.split()[1]), limit=GROWTH, what="the host").start()
+        try:
+            proc.wait(timeout=max(deadline - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            pytest.fail("the host did not stop")
+        watch.stop()
+        watch.check("after the device fault")
         reader.join(timeout=HANG_S)
         out_lines = []
         while not lines.empty():
@@ -114,9 +103,11 @@ def run_host(port: str, plan_path, out) -> dict:
         result = [l for l in out_lines if l.startswith("RESULT")]
         assert proc.returncode == 0 and result, (proc.returncode, out_lines, proc.stderr.read()[-3000:])  # type: ignore[union-attr]
         report = json.loads(result[-1].split(" ", 1)[1])
-        report.update(base=base, peak=peak)
+        report.update(base=watch.base, peak=watch.peak)
         return report
     finally:
+        if watch is not None:
+            watch.stop()
         if proc.poll() is None:
             proc.kill()
         proc.wait(timeout=HANG_S)
@@ -128,6 +119,14 @@ CASES = {
     "seq 0xFFFFFFFF": (f"seq={K}:{0xFFFFFFFF}", "sequence number 4294967295 is outside run 1"),
     "point 2^32-1": (f"point={K}:{2**32 - 1}", "of point 4294967295, wavelength 0 with 128 samples; the plan has 400 "
                                                 "points"),
+    # a field out of its documented range (docs/protocol.md §5): the scan file would refuse the A-line
+    "dc_level 0": (f"field={K}:dc_level:0", f"A-line (seq {K}) of point {K}, wavelength 0: dc_level = 0.0 V is out "
+                                            "of its range (finite and > 0)"),
+    "dc_level -1": (f"field={K}:dc_level:-1", "dc_level = -1.0 V is out of its range"),
+    "scale nan": (f"field={K}:scale:nan", "scale = nan signal per count is out of its range (finite and > 0)"),
+    "scale inf": (f"field={K}:scale:inf", "scale = inf signal per count is out of its range"),
+    "dt 0": (f"field={K}:dt:0", "dt = 0.0 s is out of its range (finite and > 0)"),
+    "sample -32768": (f"field={K}:sample:-32768", "a sample of -32768 is out of the range -32767 … 32767"),
 }
 
 

@@ -49,9 +49,20 @@ def _exports(text: str) -> None:
     assert "every export holds the reconstructed volume" in text and "p0.mat: ['p0'" in text, text
 
 
+def _tv_pyproximal(text: str) -> None:
+    found = {name: (float(j), float(cc)) for name, j, cc in re.findall(
+        r"^(tv at its stopping rule|tv, \d+ iterations|PrimalDual)[^:]*: J = ([\d.e-]+), CC with the true p0 ([\d.]+)",
+        text, re.MULTILINE)}
+    assert len(found) == 3, text
+    warm = float(re.search(r"J\(warm start\) = ([\d.e-]+)", text)[1])
+    j_tv, j_pd = found[next(k for k in found if k.startswith("tv, "))][0], found["PrimalDual"][0]
+    assert j_tv <= j_pd * 1.001 and j_pd < 0.5 * warm, found  # tv reaches PrimalDual's J on the same problem
+    assert min(cc for _, cc in found.values()) > 0.85, found
+
+
 #: what each example's output states (an example not named here: its exit status alone)
 CHECKS = {"plot_plugin_das": _plugin_das, "plot_spectral_unmixing": _unmixing, "plot_kwave_files": _kwave,
-          "plot_http_client": _http, "plot_exports": _exports}
+          "plot_http_client": _http, "plot_exports": _exports, "plot_tv_pyproximal": _tv_pyproximal}
 
 
 def test_every_example_is_collected():

@@ -85,7 +85,7 @@ def test_reconstructions_run_the_lengths_reported(shape, method):
     rng = np.random.default_rng(5)
     data = rng.standard_normal(shape)
     lengths = planar.transform_lengths(shape, DT, C, method=method)
-    rec = planar.reconstruct_grid(data, DX, DT, C, method=method)
+    rec = planar.reconstruct_grid(data, DX, DT, C, method=method, dz=C * DT)
     assert 2 * (rec.params["depth_rows"] - 1) == lengths["depth"][0]
     lateral = tuple(rec.params["lateral_transform"])
     assert lateral[-len(lengths["lateral"]):] == lengths["lateral"]
@@ -100,7 +100,7 @@ def test_reconstructions_run_the_lengths_reported(shape, method):
         yy, xx = np.meshgrid(np.arange(shape[1]) * DX, np.arange(shape[2]) * DX, indexing="ij")
         pos = np.column_stack([xx.ravel(), yy.ravel()])
     alines = data.reshape(shape[0], -1).T
-    pts = planar.reconstruct_points(alines, pos, DT, C, method=method)
+    pts = planar.reconstruct_points(alines, pos, DT, C, method=method, dz=C * DT)
     assert pts.params["depth_rows"] == rec.params["depth_rows"]
     assert tuple(pts.params["lateral_transform"])[-len(lengths["lateral"]):] == lengths["lateral"]
 

@@ -81,7 +81,7 @@ R = np.empty_like(U)
 spread_kernel(out, *args, R)
 data = np.zeros((32, 64, 64), dtype=np.float32)  # above the small-transform size: the compiled kernels run
 data[3, 2, 2] = 1.0
-p0 = reconstruct_grid(data, 1e-4, 2e-8, dtype="float32").p0
+p0 = reconstruct_grid(data, 1e-4, 2e-8, dz=3e-5, dtype="float32").p0  # n_t rows of c dt
 names = ("interp_kernel", "spread_kernel", "place_columns", "scatter_columns")
 stats = {name: getattr(nufft_kernels, name).stats for name in names}
 print(json.dumps({"bits": hashlib.sha256(out.tobytes() + R.tobytes() + p0.tobytes()).hexdigest(),

@@ -24,7 +24,7 @@ def setup():
     data = al.T.reshape(N_T, N_LAT, N_LAT)
     kx, kxw = oracle.kgrid(N_LAT, DX)
     A = oracle.lateral_dft(al, pos, np.ones(len(pos)), kx, kx)
-    rows = reconstruct_grid(data[:, :2, :2], DX, DT, C).params["depth_rows"]  # K depends on n_t, dt, c, dz only
+    rows = reconstruct_grid(data[:, :2, :2], DX, DT, C, dz=DZ).params["depth_rows"]  # K depends on n_t, dt, c, dz only
     exact = oracle.invert(A, kx, kxw, kx, kxw, DT, C, rows, DZ, 0.0, x, x, n_lat=(N_LAT, N_LAT), rows=N_T)
     z = np.arange(N_T) * DZ
     analytic = ball_p0(balls, z, x, x, supersample=3)
@@ -40,7 +40,7 @@ def rel(a, b, m):
 
 
 def test_ball_centres_within_one_voxel_and_amplitude_falls_with_depth(setup):
-    im = reconstruct_grid(setup["data"], DX, DT, C)
+    im = reconstruct_grid(setup["data"], DX, DT, C, dz=DZ)
     peaks = []
     for b in setup["balls"]:
         iz = int(round(b.z / DZ))
@@ -58,8 +58,8 @@ def test_ball_centres_within_one_voxel_and_amplitude_falls_with_depth(setup):
 
 
 def test_ner_is_the_exact_discrete_result_and_linear_is_not(setup):
-    ner = reconstruct_grid(setup["data"], DX, DT, C).p0
-    lin = reconstruct_grid(setup["data"], DX, DT, C, method="linear").p0
+    ner = reconstruct_grid(setup["data"], DX, DT, C, dz=DZ).p0  # the oracle's rows, c·dt (the pitch is 100 µm)
+    lin = reconstruct_grid(setup["data"], DX, DT, C, method="linear", dz=DZ).p0
     m = setup["region"]
     e_ner = rel(ner, setup["exact"], m)
     e_lin = rel(lin, setup["exact"], m)

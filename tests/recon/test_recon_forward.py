@@ -26,7 +26,7 @@ def test_forward_then_reconstruct_recovers_a_layer_exactly():
     f = np.exp(-(((z - 30 * DZ) / (4 * DZ)) ** 2))
     p0 = np.broadcast_to(f[:, None, None], (96, 6, 8)).copy()
     g = forward_grid(p0, 2 * DZ, DZ, DT, 96, C, eps=1e-12, periodic=True)
-    back = reconstruct_grid(g, 2 * DZ, DT, C, eps=1e-12).p0
+    back = reconstruct_grid(g, 2 * DZ, DT, C, eps=1e-12, dz=DZ).p0  # p0's rows (the pitch is 2 DZ)
     assert np.abs(back - p0).max() <= 1e-8
 
 

@@ -90,7 +90,7 @@ def test_temporal_step_in_single_precision_matches_direct_cosine_sums(engine):
 @pytest.mark.parametrize("shape", [(40, 12), (24, 6, 8), (21, 5, 7)])
 def test_ner_matches_direct_sum(shape):
     g = rng.standard_normal(shape)
-    ims = [reconstruct_grid(g, DX, DT, C, eps=eps) for eps in (1e-3, 1e-6, 1e-9)]
+    ims = [reconstruct_grid(g, DX, DT, C, eps=eps, dz=C * DT) for eps in (1e-3, 1e-6, 1e-9)]
     ref = oracle_grid(g, rows=ims[0].params["depth_rows"], lateral=ims[0].params["lateral_transform"])
     errs = [rel(im.p0, ref) for im in ims]
     assert errs[1] <= 1e-5, errs
@@ -114,15 +114,15 @@ def test_ner_depth_grid_and_time_offset_match_direct_sum():
 def test_shallow_image_is_the_top_of_the_full_depth_image():
     # asking for fewer depths must not fold deeper signals back into the image
     g = rng.standard_normal((48, 6, 8))
-    full = reconstruct_grid(g, DX, DT, C).p0
-    top = reconstruct_grid(g, DX, DT, C, n_z=12).p0
+    full = reconstruct_grid(g, DX, DT, C, dz=C * DT).p0
+    top = reconstruct_grid(g, DX, DT, C, n_z=12, dz=C * DT).p0
     np.testing.assert_allclose(top, full[:12], atol=1e-12 * np.abs(full).max())
 
 
 def test_float32_is_close_to_float64():
     g = rng.standard_normal((32, 8, 10))
-    a = reconstruct_grid(g, DX, DT, C).p0
-    b = reconstruct_grid(g, DX, DT, C, dtype=np.float32).p0
+    a = reconstruct_grid(g, DX, DT, C, dz=C * DT).p0
+    b = reconstruct_grid(g, DX, DT, C, dtype=np.float32, dz=C * DT).p0
     assert b.dtype == np.float32
     assert rel(b, a) <= 1e-4
 
@@ -133,8 +133,8 @@ def test_interpolation_modes_approximate_the_same_formula(method):
     t = np.arange(128) * DT
     pulse = np.exp(-(((t - 60 * DT) / (6 * DT)) ** 2))
     g = pulse[:, None] * np.hanning(16)[None, :]
-    ref = reconstruct_grid(g, DX, DT, C, eps=1e-12).p0
-    approx = reconstruct_grid(g, DX, DT, C, method=method).p0
+    ref = reconstruct_grid(g, DX, DT, C, eps=1e-12, dz=C * DT).p0
+    approx = reconstruct_grid(g, DX, DT, C, method=method, dz=C * DT).p0
     assert rel(approx, ref) < 0.3
 
 
@@ -145,15 +145,15 @@ def test_uniform_layer_comes_back_exactly():
     f = np.exp(-(((z - 80 * C * DT) / (6 * C * DT)) ** 2))
     for shape in ((n_t, n_x), (n_t, 4, n_x)):
         g = 0.5 * np.broadcast_to(f.reshape((n_t,) + (1,) * (len(shape) - 1)), shape)
-        p0 = reconstruct_grid(np.ascontiguousarray(g), DX, DT, C, eps=1e-12).p0
+        p0 = reconstruct_grid(np.ascontiguousarray(g), DX, DT, C, eps=1e-12, dz=C * DT).p0
         err = np.abs(p0 - f.reshape((n_t,) + (1,) * (len(shape) - 1))).max() / f.max()
         assert err <= 1e-8, err
 
 
 def test_upsampling_interpolates_the_same_image():
     g = rng.standard_normal((32, 6, 8))
-    base = reconstruct_grid(g, DX, DT, C)
-    up = reconstruct_grid(g, DX, DT, C, upsample=2)
+    base = reconstruct_grid(g, DX, DT, C, dz=C * DT)
+    up = reconstruct_grid(g, DX, DT, C, upsample=2, dz=C * DT)
     assert up.p0.shape == (32, 12, 16)
     np.testing.assert_allclose(up.x[::2], base.x)
     np.testing.assert_allclose(up.y[::2], base.y)
@@ -162,6 +162,6 @@ def test_upsampling_interpolates_the_same_image():
 
 def test_positivity_clips_negative_values():
     g = rng.standard_normal((32, 10))
-    a = reconstruct_grid(g, DX, DT, C).p0
-    b = reconstruct_grid(g, DX, DT, C, positivity=True).p0
+    a = reconstruct_grid(g, DX, DT, C, dz=C * DT).p0
+    b = reconstruct_grid(g, DX, DT, C, positivity=True, dz=C * DT).p0
     np.testing.assert_allclose(b, np.maximum(a, 0))

@@ -31,7 +31,7 @@ def test_nedner_matches_direct_sum_3d(n_x, n_y):
     al = rng.standard_normal((n_pts, n_t))
     # each step: the lateral type-1 NUFFT against the direct sum (via the whole pipeline
     # at two tolerances) and the whole pipeline
-    ims = [reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=e) for e in (1e-3, 1e-6)]
+    ims = [reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=e, dz=C * DT) for e in (1e-3, 1e-6)]
     K, (n_yp, n_xp) = ims[0].params["depth_rows"], ims[0].params["lateral_transform"]
     kx, kxw = oracle.kgrid(n_xp, DX)
     ky, kyw = oracle.kgrid(n_yp, DX)
@@ -47,7 +47,7 @@ def test_nedner_matches_direct_sum_2d():
     pos = np.sort(rng.uniform(x[0], x[-1], 11))[:, None]
     h = rng.uniform(0.5, 1.5, 11) * DX
     al = rng.standard_normal((11, n_t))
-    im = reconstruct_points(al, pos, DT, C, weights=h, grid=(x,))
+    im = reconstruct_points(al, pos, DT, C, weights=h, grid=(x,), dz=C * DT)
     n_xp = im.params["lateral_transform"][1]
     kx, kxw = oracle.kgrid(n_xp, DX)
     A = oracle.lateral_dft(al, pos, h / DX, kx)
@@ -64,7 +64,7 @@ def test_lateral_step_is_the_type1_sum():
     pos = np.array([[x[3] + 0.37 * DX]])
     al = np.zeros((1, n_t))
     al[0, 5] = 1.0
-    im = reconstruct_points(al, pos, DT, C, weights=np.array([DX]), grid=(x,), eps=1e-9)
+    im = reconstruct_points(al, pos, DT, C, weights=np.array([DX]), grid=(x,), eps=1e-9, dz=C * DT)
     n_xp = im.params["lateral_transform"][1]
     kx, kxw = oracle.kgrid(n_xp, DX)
     A = oracle.lateral_dft(al, pos, np.ones(1), kx)
@@ -84,8 +84,8 @@ def test_full_lattice_reproduces_grid_reconstruction(shape):
         X, Y = np.meshgrid(centred(shape[2]), centred(shape[1]))
         pos = np.column_stack([X.ravel(), Y.ravel()])
         al = g.reshape(n_t, -1).T
-    a = reconstruct_grid(g, DX, DT, C)
-    b = reconstruct_points(al, pos, DT, C)  # default Voronoi weights and grid
+    a = reconstruct_grid(g, DX, DT, C, dz=C * DT)
+    b = reconstruct_points(al, pos, DT, C, dz=C * DT)  # default Voronoi weights and grid
     np.testing.assert_allclose(voronoi_weights(pos), DX ** (pos.shape[1]), rtol=1e-12)
     assert np.abs(b.p0 - a.p0).max() <= 1e-6 * np.abs(a.p0).max()
     np.testing.assert_allclose(b.x, a.x, atol=1e-12 * DX)
@@ -112,7 +112,7 @@ def test_lattice_mask_matches_direct_sum(n_x, n_y):
     pos = np.column_stack([x[k % n_x], y[k // n_x]])
     h = rng.uniform(0.5, 1.5, len(k)) * DX * DX
     al = rng.standard_normal((len(k), n_t))
-    im = reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=1e-9)
+    im = reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=1e-9, dz=C * DT)
     n_yp, n_xp = im.params["lateral_transform"]
     kx, kxw = oracle.kgrid(n_xp, DX)
     ky, kyw = oracle.kgrid(n_yp, DX)

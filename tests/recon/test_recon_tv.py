@@ -111,7 +111,7 @@ def balls_3d():
     p0 = ball_p0(balls, z, x, x, supersample=2)
     g = _noisy(forward_grid(p0, dx, DZ, DT, n_t, C))
     roi = np.ones(p0.shape, bool)
-    full = correlation_coefficient(reconstruct_grid(g, dx, DT, C, n_z=n_z).p0, p0, roi)
+    full = correlation_coefficient(reconstruct_grid(g, dx, DT, C, n_z=n_z, dz=DZ).p0, p0, roi)  # p0's rows
     mask = equisteradian_mask(Lattice(n, n, dx), 12 * DZ, 48)
     ix, iy = np.asarray(mask.indices).T
     return dict(p0=p0, roi=roi, full=full, x=x, n_z=n_z, alines=g[:, iy, ix].T, frac=len(ix) / n**2,
@@ -120,7 +120,7 @@ def balls_3d():
 
 def _tv_3d(b, **kw):
     return reconstruct_tv(b["alines"], DT, C, positions=b["pos"], weights=b["w"], grid=(b["x"], b["x"]),
-                          n_z=b["n_z"], dtype=np.float32, **kw)
+                          n_z=b["n_z"], dz=DZ, dtype=np.float32, **kw)  # p0's rows (the pitch is 2 DZ)
 
 
 def test_tv_3d_sparse_equisteradian_mask_reaches_full_data(balls_3d):
@@ -174,7 +174,7 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     auto = _tv_3d(b, bandwidth=0.5 / DT, max_iter=1)
     g = b["alines"]
     x = b["x"]
-    warm = reconstruct_points(g, b["pos"], DT, C, weights=b["w"], grid=(x, x), n_z=b["n_z"]).p0
+    warm = reconstruct_points(g, b["pos"], DT, C, weights=b["w"], grid=(x, x), n_z=b["n_z"], dz=DZ).p0
     missed = forward_points(np.maximum(warm, 0), x[1] - x[0], DZ, b["pos"], DT, g.shape[1], C) - g
     d0 = float(np.linalg.norm(missed)) / (noise_sigma(g, 1) * np.sqrt(g.size))
     p = auto.params

@@ -102,9 +102,10 @@ def test_the_band_is_what_the_lateral_pitch_resolves_and_the_same_for_any_record
     assert tv_grid(600, 10e-9, C).reason == "nyquist"  # no pitch known: the record's own band
     kept = tv_grid(600, 10e-9, C, data=pulse, time_axis=1, pitch=DX, dz=5e-6, n_z=77)  # given: honoured
     assert (kept.dz, kept.n_z, kept.band) == (5e-6, 77, C / (2 * DX))
-    one = tv_grid(600, 10e-9, C, pitch=DX, n_z=77)  # one given: the other as before
-    assert (one.dz, one.n_z) == (C * 10e-9, 77)
-    assert tv_grid(600, 10e-9, C, pitch=DX, dz=5e-6).n_z == 600
+    one = tv_grid(600, 10e-9, C, pitch=DX, n_z=77)  # one given: the other by the depth grid's rule
+    assert (one.dz, one.n_z) == (C / (2 * one.band), 77) and np.isclose(one.dz, DX)
+    # dz alone: rows reaching c·t_last = c · 599 · 10 ns (8.985 mm)
+    assert tv_grid(600, 10e-9, C, pitch=DX, dz=5e-6).n_z == int(np.floor(C * 599 * 10e-9 / 5e-6 + 1e-9)) + 1
     for bad in ({"pitch": 0.0}, {"pitch": np.nan}, {"reach": -1.0}, {"bandwidth": -1.0}):
         with pytest.raises(ValueError):
             tv_grid(600, 10e-9, C, **bad)
@@ -265,4 +266,6 @@ def test_the_grid_loads_no_solver_and_the_package_exports_on_first_use():
     assert got["before"] == ["fpscan.service.recon.tv.grid"], got["before"]
     assert got["owners"] == {"TvGrid": "fpscan.service.recon.tv.grid", "noise_sigma": "fpscan.service.recon.tv.grid",
                              "reconstruct_tv": "fpscan.service.recon.tv.reconstruct",
+                             "tv_problem": "fpscan.service.recon.tv.reconstruct",
+                             "TvProblem": "fpscan.service.recon.tv.formulation",
                              "tv_grid": "fpscan.service.recon.tv.grid"}, got["owners"]

@@ -63,7 +63,8 @@ def test_the_proximal_map_matches_the_compiled_sweeps(shape: tuple, dtype: type,
         assert np.abs(d1.astype(np.float64) - d2.astype(np.float64)).max() <= 2 * (1 if d1.dtype == np.int16 else 1e-5)
 
 
-def test_the_solver_loop_gives_one_image_with_either_kernel_set() -> None:
+@pytest.mark.parametrize("exact", [False, True], ids=["preconditioned", "exact phase"])
+def test_the_solver_loop_gives_one_image_with_either_kernel_set(exact: bool) -> None:
     p0 = np.zeros((24, 40))
     p0[10:14, 15:22] = 1.0
     p0[17, 30] = 2.0
@@ -79,11 +80,12 @@ def test_the_solver_loop_gives_one_image_with_either_kernel_set() -> None:
                    checkpoint=None, memory_limit=None)
     gain, _, _ = geometry_numbers(model, lambda fraction: None)
     images = []
+    n = 80 if exact else 40
     for kernels in (None, XK):
         solved = fista.run_fista(model.forward, model.B, record.g, [start_image(warm, np.dtype(np.float32), True)],
-                              0.05 * gain, fista.MARGIN * gain, True, 40, 0.0, time.monotonic(), 3600.0, None,
-                              model.residual, kernels=kernels)
-        assert solved.iterations == 40
+                              0.05 * gain, fista.MARGIN * gain, True, n, 0.0, time.monotonic(), 3600.0, None,
+                              model.residual, kernels=kernels, precondition=model.precondition if exact else None)
+        assert solved.iterations == n and (solved.exact_from is not None) == exact, solved.exact_from
         images.append(solved.x)
     cc = float(np.corrcoef(images[0].ravel(), images[1].ravel())[0, 1])
     assert cc >= 0.9999, cc

@@ -1,9 +1,9 @@
 """tv's quality gate on data nobody here wrote, the CI subset of
-`benchmarks/bench_tv_matrix.py`: k-Wave's vessel tree and balls + yarn (``../shared/data``), a 4 %
-equi-steradian mask, noise 20 dB below the peak (k-Wave's ``addNoise(..., 'peak')``). tv's default
-image (the one dispatch, float32, the phantom's depth grid) must beat full-data NER's CC with the
-true p0, and on the vessel tree keep the amplitude the gate asks for and the thin vessels its
-reference sees (the reference run itself is the whole matrix's, too slow for CI)."""
+`benchmarks/bench_tv_matrix.py`: k-Wave's vessel tree and balls + yarn (the ``shared_data``
+fixture), a 4 % equi-steradian mask, noise 20 dB below the peak (k-Wave's ``addNoise(..., 'peak')``).
+tv's default image (the one dispatch, float32, the phantom's depth grid) must beat full-data NER's
+CC with the true p0, and on the vessel tree keep the amplitude the gate asks for and the thin
+vessels its reference sees (the reference run itself is the whole matrix's, too slow for CI)."""
 from __future__ import annotations
 
 import importlib.util

@@ -97,8 +97,6 @@ def has_recon() -> bool:
 needs_recon = pytest.mark.skipif(not has_recon(), reason="fpscan.service.recon not available")
 
 
-
-
 def wait_gone(procs, timeout: float = HANG_S) -> list:
     """Wait until the psutil processes ``procs`` have exited; returns those still alive."""
     import psutil

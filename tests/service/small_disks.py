@@ -30,9 +30,10 @@ def tmpfs(folder: Path, size: str) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(folder)], capture_output=True)
 
 
-def fill(folder: Path) -> None:
-    """Take every free byte of the disk, as another program that filled it once would, without
-    taking what the server frees afterwards, into ``folder / "filler.bin"``. A loop of writes
+def fill(folder: Path, leave: int = 0) -> None:
+    """Take every free byte of the disk but ``leave`` (bytes; default 0), as another program
+    that filled it once would, without taking what the server frees afterwards, into
+    ``folder / "filler.bin"``. A loop of writes
     until one fails took more: the server may meet the full disk first (the scan's next
     A-line) and give up its job store's reserve, and the loop then took the freed reserve too,
     so that a cancel afterwards found no room (seen in loaded runs). Here: all but a slack of
@@ -47,7 +48,7 @@ def fill(folder: Path) -> None:
         return st.f_bavail * st.f_frsize
 
     try:
-        for slack in (4 << 20, 0):
+        for slack in (leave + (4 << 20), leave):
             want = free() - slack
             for _ in range(1000):  # bounded: each retry follows a write of the server's
                 if want <= 0:

@@ -26,7 +26,9 @@ def test_concurrent_first_exports_wait_for_one_build_and_serve_the_same_bytes(tm
     import tifffile
 
     data = tmp_path / "data"
-    srv = Server(data).start()
+    # 4 export builds at once and 16 waiting: room for the 20 requests (the admission counts the
+    # requests waiting for another's build too: tests/service/test_export_bounds.py)
+    srv = Server(data, env={"FPSCAN_EXPORT_WORKERS": "4"}).start()
     try:
         with srv.client() as api:
             buf = io.BytesIO()

@@ -112,7 +112,7 @@ def _assert_in_time(took: dict[str, float]) -> None:
 
 @pytest.fixture(scope="module")
 def hostile_server(tmp_path_factory):
-    spool = tmp_path_factory.mktemp("hostile-tmp")  # the server's TMPDIR: upload bodies spool here
+    spool = tmp_path_factory.mktemp("hostile-tmp")  # the server's TMPDIR: no upload may leave a file there
     # imports time out after 3 s (the file that blocks HDF5 is answered then, within the
     # 5 s bound with the child's start-up; the valid uploads here take under 1.1 s)
     srv = Server(tmp_path_factory.mktemp("hostile") / "data",

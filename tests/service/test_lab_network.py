@@ -252,7 +252,7 @@ def test_fpscan_serve_allowed_host_flag(tmp_path):
 
     port = free_port()
     argv = fpscan_argv("serve", "--host", "127.0.0.1", "--port", str(port), "--no-web", "--token", TOKEN,
-                       "--allowed-host", "scanner-pc.lab", "--allowed-host", "192.168.7.20")
+                       "--allow-weak-token", "--allowed-host", "scanner-pc.lab", "--allowed-host", "192.168.7.20")
     srv = Service(argv, port=port, token=TOKEN, data_dir=tmp_path / "data", log_path=tmp_path / "serve.log",
                   env=clean_env(FPSCAN_DATA_DIR=str(tmp_path / "data")))
     try:

@@ -23,6 +23,8 @@ from tests.waits import HANG_S
 pytestmark = needs_recon
 
 N, N_T, DT, PITCH = 8, 32, 2e-8, 1e-4
+#: the default depth grid (fpscan.service.recon.depth): rows of the pitch down to c·t_last = 0.93 mm
+N_Z = int(1500.0 * (N_T - 1) * DT / PITCH) + 1
 
 
 def _upload(api) -> str:
@@ -108,12 +110,12 @@ def test_delete_retention_and_restart(tmp_path):
             r = api.get(f"/api/jobs/{short}/export/ome-tiff")
             assert r.status_code == 200, r.text
             with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
-                assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_T, N, N)
+                assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_Z, N, N)
                 pixels = tif.ome_metadata.split("<Pixels ", 1)[1].split(">", 1)[0]
             sizes = {k: float(v.strip('"')) for k, v in (a.split("=", 1) for a in pixels.split())
                      if k in ("PhysicalSizeX", "PhysicalSizeY", "PhysicalSizeZ")}
             assert sizes == pytest.approx({"PhysicalSizeX": PITCH * 1e6, "PhysicalSizeY": PITCH * 1e6,
-                                           "PhysicalSizeZ": 1500.0 * DT * 1e6})
+                                           "PhysicalSizeZ": PITCH * 1e6})
 
             # an ambiguous prefix: a second job whose id starts with the same 8 characters
             # (a finished scan with no file, written to the database as another process would)
@@ -276,3 +278,62 @@ def test_retention_by_bytes_alone(tmp_path):
     lifecycle.set_retention(store, {"keep_bytes": 0, "include_scans": True})
     assert lifecycle.apply_retention(store, S) == [scan["id"]] and not (data / "scans" / "s.h5").exists()
     store.close()
+
+
+def test_a_report_whose_rollback_failed_raises_its_own_error_and_ends_at_full_sync(tmp_path):
+    """A report (``update_progress``: committed with ``synchronous=NORMAL``) that fails and whose
+    ROLLBACK fails too: the report's own error is raised (today's main raised SQLite's "Safety
+    level may not be changed inside a transaction" instead, so a full disk was no longer
+    recognised as one), the connection is out of the transaction and back at
+    ``synchronous=FULL``, and the next commit is durable and stored. The failures are SQLite's
+    own: an authorizer (``sqlite3_set_authorizer``) on the store's real connection refuses the
+    progress UPDATE and then the first ROLLBACK."""
+    store = JobStore(tmp_path / "jobs.sqlite", reserve_bytes=0)
+    try:
+        job, _ = store.create_job("recon", {"method": "ner"})
+        refused = {"update": 1, "rollback": 1}
+
+        def authorizer(action: int, arg1, arg2, _db, _trigger) -> int:
+            if action == sqlite3.SQLITE_UPDATE and arg1 == "jobs" and arg2 == "progress" and refused["update"]:
+                refused["update"] -= 1
+                return sqlite3.SQLITE_DENY
+            if action == sqlite3.SQLITE_TRANSACTION and arg1 == "ROLLBACK" and refused["rollback"]:
+                refused["rollback"] -= 1
+                return sqlite3.SQLITE_DENY
+            return sqlite3.SQLITE_OK
+
+        store._db.set_authorizer(authorizer)
+        with pytest.raises(sqlite3.DatabaseError, match="not authorized"):
+            store.update_progress(job["id"], {"note": "x"})
+        assert refused == {"update": 0, "rollback": 0}  # both failed as meant
+        store._db.set_authorizer(None)
+        assert not store._db.in_transaction
+        assert store._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+        assert store.set_state(job["id"], "cancelled")
+        assert store.get(job["id"])["state"] == "cancelled" and "note" not in store.get(job["id"])["progress"]
+    finally:
+        store.close()
+
+
+def test_an_older_database_gains_the_datasets_store_times_from_their_wall_times(tmp_path):
+    """A database of an earlier release (datasets with their wall times only): each dataset's
+    store time of use becomes its latest use's wall time (the meta's ``last_used``, else its
+    upload's), the best there is, as the jobs' were; a dataset stored afterwards comes after
+    them on the store's time, and retention ages them by it."""
+    from types import SimpleNamespace
+
+    db = tmp_path / "jobs.sqlite"
+    with sqlite3.connect(db) as con:  # the datasets table as earlier releases made it
+        con.execute("CREATE TABLE datasets (id TEXT PRIMARY KEY, meta TEXT NOT NULL, created REAL NOT NULL)")
+        con.execute("INSERT INTO datasets VALUES ('used', ?, 1000.0)", (json.dumps({"last_used": 5000.0}),))
+        con.execute("INSERT INTO datasets VALUES ('idle', '{}', 2000.0)")
+    store = JobStore(db)
+    try:
+        assert {r["id"]: r["used_mono"] for r in store.list_datasets()} == {"used": 5000.0, "idle": 2000.0}
+        store.put_dataset("new", {})
+        assert store.list_datasets()[-1]["used_mono"] > 5000.0
+        settings = SimpleNamespace(data_dir=tmp_path / "data")
+        policy = {"datasets_max_age_s": 2500.0, "datasets_keep_bytes": None}
+        assert lifecycle.apply_dataset_retention(store, settings, policy, now=5500.0) == ["idle"]
+    finally:
+        store.close()

@@ -71,7 +71,11 @@ def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
 
 def test_depth_rows_follow_dz_and_absurd_dz_is_refused():
     shape = {"n_t": 256, "n_x": 32, "n_y": 32, "dt": 2e-8, "sound_speed": 1500.0}
-    assert working_depth_rows(shape, {}) == 256
+    # no pitch known: n_t rows of c·dt, and the transform works on one more, the row at c·t_last
+    # (fpscan.service.recon.planar.depth_axis: 256 rows asked, 257 worked on)
+    assert working_depth_rows(shape, {}) == 257
+    # a pitch of 0.1 mm: the default dz, 77 rows down to c·t_last = 7.65 mm, 78 worked on
+    assert working_depth_rows({**shape, "dx": 1e-4}, {}) == 78
     # dz = c·dt / 4: four times the rows, and more memory than the default
     assert working_depth_rows(shape, {"dz": 1500.0 * 2e-8 / 4}) >= 4 * 255
     assert estimate_memory(shape, {"dz": 1500.0 * 2e-8 / 4}) > estimate_memory(shape, {})
@@ -90,12 +94,13 @@ def test_the_worker_refuses_a_job_over_the_configured_limit(tmp_path):
         f.attrs.update({"layout": "grid", "dt": 2e-8, "dx": 1e-4, "c": 1500.0})
         f["data"] = np.random.default_rng(0).standard_normal((128, 24, 24)).astype(np.float32)
     spec = {"input": {"kind": "dataset", "path": str(path)}, "params": {"method": "ner", "upsample": 4},
-            "out_dir": str(tmp_path / "out"), "memory_limit": 4 * 2**20}
+            "out_dir": str(tmp_path / "out"), "memory_limit": 2 * 2**20}
     with pytest.raises(ValueError, match="memory limit"):
         run_reconstruction(spec)
     assert not (tmp_path / "out").exists()
     spec["memory_limit"] = 8 * 2**30  # the same job under a limit it fits
-    assert run_reconstruction(spec)["shape"] == [128, 96, 96]
+    # the default depth grid: the pitch (0.1 mm) down to c·t_last = 3.81 mm
+    assert run_reconstruction(spec)["shape"] == [39, 96, 96]
 
 
 # the tv probes' warm-up: a small input of the same kind (imports), then the kernels a job worker
@@ -264,7 +269,7 @@ def test_the_worker_admits_the_jobs_own_estimate(tmp_path):
     with pytest.raises(ValueError, match="2.00 GiB"):
         run_reconstruction(spec)
     spec["memory_estimate"] = 2**20
-    assert run_reconstruction(spec)["shape"] == [16, 8, 8]
+    assert run_reconstruction(spec)["shape"] == [5, 8, 8]  # the pitch (0.1 mm) down to c·t_last = 0.45 mm
 
 
 KWAVE_PEAK_SCRIPT = r"""

@@ -14,6 +14,7 @@ is ``sound_speed`` / ``--sound-speed`` with ``c`` / ``--c`` still accepted.
 from __future__ import annotations
 
 import io
+import json
 import math
 from pathlib import Path
 
@@ -254,5 +255,7 @@ def test_sound_speed_and_its_deprecated_name_c_mean_the_same(shared_api, tmp_pat
         assert code == 0, capsys.readouterr().err
         h5py = pytest.importorskip("h5py")
         with h5py.File(tmp_path / flag.strip("-") / "volume.h5", "r") as f:
-            z = f["z"][:]
-        assert math.isclose(z[1] - z[0], 1480.0 * DT, rel_tol=1e-9), z[:2]  # depth spacing c·dt at that c
+            z, used = f["z"][:], json.loads(f.attrs["params"])
+        assert used["sound_speed"] == 1480.0, used
+        # the rows reach c·t_last at that c: ⌊1480 · (N_T - 1) · DT / DX⌋ + 1 of the pitch
+        assert len(z) == math.floor(1480.0 * (N_T - 1) * DT / DX) + 1 and math.isclose(z[1] - z[0], DX), z

@@ -122,7 +122,7 @@ def test_options_and_inputs_are_checked():
                           lattice={"n_x": 6, "n_y": 5, "pitch": 1e-4})
     with pytest.raises(ValueError, match="lattice point"):
         reconstruct(sparse, "ner")
-    assert reconstruct(sparse, "nedner").p0.shape == (24, 5, 6)
+    assert reconstruct(sparse, "nedner").p0.shape == (7, 5, 6)  # the pitch (0.1 mm) down to c·t_last = 0.69 mm
 
 
 def test_full_lattice_points_reconstruct_as_the_grid():

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import math
 
 import h5py
 import numpy as np
@@ -173,11 +174,17 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
         used = json.loads(attrs["params"])
         for name, value in options.items():
             assert used.get(name) == value, (name, used)
-    n_t = N_T
-    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (fpscan.service.recon.tv.grid)
-        n_t = json.loads(local_attrs["params"])["n_z"]
-        assert n_t <= N_T
-    assert local_p0.shape[0] == n_t and local_p0.ndim == 3
+    # the default depth grid (fpscan.service.recon.depth): the pitch down to c·t_last; kwave: k-Wave's own, n_t
+    # rows of c·dt; tv: at the pitch's band down to the last echo (fpscan.service.recon.tv.grid), no deeper
+    pitch, dt, c = (60e-6, 8e-9, 1500.0) if path == inputs["kwave"] else (PITCH, DT, C)
+    rows = math.floor(c * (N_T - 1) * dt / pitch) + 1  # 12 rows of 0.1 mm (scans), 8 of 60 µm (k-Wave)
+    if method == "kwave":
+        rows = N_T
+    elif method == "tv":
+        used = json.loads(local_attrs["params"])
+        assert used["n_z"] <= rows and used["dz"] == pytest.approx(pitch)
+        rows = used["n_z"]
+    assert local_p0.shape[0] == rows and local_p0.ndim == 3
     assert np.abs(local_p0).max() > 0
     np.testing.assert_array_equal(worker_p0, local_p0)
     np.testing.assert_allclose(remote_p0, local_p0, rtol=0, atol=1e-6 * np.abs(local_p0).max())

@@ -205,7 +205,8 @@ def test_a_plugin_method_and_format_are_served_and_the_record_names_the_method(s
     assert job["params"]["result"]["params_used"]["method"] == "toy", job["params"]["result"]
     with h5py.File(tmp_path / "served.h5", "r") as f:
         assert f.attrs["method"] == "toy" and json.loads(f.attrs["params"])["method"] == "toy"
-    assert text.read_text() == f"method=toy\nshape={N_T}x{N}x{N}\n"
+    rows = int(1500.0 * (N_T - 1) * DT / DX) + 1  # the default depth grid: the pitch down to c·t_last (19 rows)
+    assert text.read_text() == f"method=toy\nshape={rows}x{N}x{N}\n"
     with np.load(npz) as got:
         assert str(got["method"]) == "toy"
     # the broken plugin left the server up, and was named in its log

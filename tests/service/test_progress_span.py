@@ -168,3 +168,59 @@ def test_wavelengths_share_the_range_and_name_themselves():
     for k in range(3):
         mine = [f for f, s in seen if s == f"reconstructing (wavelength {k + 1}/3)"]
         assert mine[0] == pytest.approx(k / 3) and mine[-1] == pytest.approx((k + 1) / 3), (k, mine)
+
+
+def test_forward_never_steps_back_in_fraction_or_stage():
+    """`forward`: a lower fraction is reported as the highest so far; a stage of a kind left
+    behind comes back only with a rise of the fraction (the next wavelength's new work), else the
+    current stage is said again; every report is passed on, so a cancel raised there is heard."""
+    from fpscan.service.progress import Forward, IterationStage, forward
+
+    seen, outer = _recorder()
+    report = forward(outer)
+    assert isinstance(report, Forward) and forward(report) is report and forward(None) is None
+    report(0.2, "reconstructing")
+    report(0.5, IterationStage(9, 100))
+    report(0.4, IterationStage(10, 100))  # a step back in fraction: raised to 0.5
+    report(0.9, "converged after 10 iterations (wavelength 1/2)")
+    report(0.9, "reconstructing")  # the dispatch's closing stage, no progress: not a step back
+    report(0.9, "writing")
+    report(0.95, "warm start (wavelength 2/2)")
+    report(0.96, "converged after 10 iterations (wavelength 2/2)")  # left behind, but new work: it rose
+    assert seen == [(0.2, "reconstructing"), (0.5, "iteration 9/100"), (0.5, "iteration 10/100"),
+                    (0.9, "converged after 10 iterations (wavelength 1/2)"),
+                    (0.9, "converged after 10 iterations (wavelength 1/2)"), (0.9, "writing"),
+                    (0.95, "warm start (wavelength 2/2)"), (0.96, "converged after 10 iterations (wavelength 2/2)")]
+    assert isinstance(seen[2][1], IterationStage) and seen[2][1].k == 10  # the stage itself, its numbers kept
+
+    class Stop(Exception):
+        pass
+
+    def cancel(f, stage):
+        raise Stop(stage)
+
+    guarded = forward(cancel)
+    with pytest.raises(Stop, match="iteration 1/5"):
+        guarded(0.3, "iteration 1/5")
+
+
+def test_a_tv_reconstruction_ends_on_its_outcome_not_on_the_dispatchs_stage():
+    """`reconstruct` with tv: once tv said how it ended ("converged after k iterations" or
+    "stopped after ..."), the dispatch's closing report at the same fraction keeps that stage
+    (it said "reconstructing" there, a step back); fractions never fall."""
+    from fpscan.physics.forward import forward_grid
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.recon.dataset import GridDataset
+
+    p0 = np.zeros((12, 16))
+    p0[5:8, 7:10] = 1.0
+    g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
+    seen, outer = _recorder()
+    reconstruct(GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0), "tv", n_z=12, max_iter=6,
+                progress=span(outer, 0.2, 0.9))
+    stages = [s for _, s in seen]
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == 0.9, seen
+    ended = [i for i, s in enumerate(stages) if s.startswith(("converged after", "stopped after", "iteration 6/6"))]
+    assert ended and all(not s.startswith("reconstructing") for s in stages[ended[0]:]), stages
+    assert stages[-1].startswith(("converged after", "stopped after", "iteration 6/6")), stages

@@ -114,7 +114,8 @@ def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared
     for plane in ("xy", "xz", "yz"):
         png = api.get(f"/api/reconstructions/{job_id}/mip/{plane}.png")
         assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
-    assert api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": 80}).status_code == 200
+    ball_row = round(1.2e-3 / float(vol["z"][1] - vol["z"][0]))  # the ball's depth row (12 of the 0.1 mm pitch)
+    assert api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": ball_row}).status_code == 200
     r = api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": 10**6})
     assert r.status_code == 422 and "index" in r.json()["detail"]
     r = api.get(f"/api/reconstructions/{job_id}/volume.h5", headers={"Range": "bytes=0-99"})
@@ -186,7 +187,7 @@ def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shar
     ds = r.json()
     assert ds["layout"] == "grid" and ds["shape"] == [3519, 1024] and ds["dt"] == pytest.approx(1e-8)
     r = shared_api.post("/api/reconstructions", json={"dataset_id": ds["dataset_id"], "method": "ner",
-                                                      "params": {"dtype": "float64", "n_z": 854}})
+                                                      "params": {"dtype": "float64", "n_z": 854, "dz": 1.5e-5}})
     jid = r.json()["id"]
     assert wait_job(shared_api, jid)["state"] == "succeeded"
     vol, attrs = download_volume(shared_api, jid)
@@ -194,7 +195,8 @@ def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shar
     with h5py.File(path, "r") as f:
         data = f["sensor_data/clean"][...]
         kwave = f["recon/clean/recon_starlinear_poscond0"][...]
-    direct = reconstruct_grid(data, 5e-5, 1e-8, 1500.0, method="ner", dtype=np.float64, n_z=854)
+    # k-Wave's rows: 854 of c·dt = 15 µm (the default would be the pitch, 50 µm)
+    direct = reconstruct_grid(data, 5e-5, 1e-8, 1500.0, method="ner", dtype=np.float64, n_z=854, dz=1.5e-5)
     np.testing.assert_allclose(vol["p0"], direct.p0, rtol=0, atol=1e-9 * np.abs(direct.p0).max())
     cc = np.corrcoef(vol["p0"].ravel(), kwave.ravel())[0, 1]
     assert cc > 0.9, cc
@@ -222,7 +224,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     for bad, name in (({"lam": -1.0}, "lam"), ({"max_iter": 0}, "max_iter"), ({"lam": "a lot"}, "lam")):
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": bad})
         assert r.status_code == 422 and name in r.text, r.text
-    params = {"dtype": "float64", "lam": 0.0, "max_iter": max_iter, "n_z": 16}
+    params = {"dtype": "float64", "lam": 0.0, "max_iter": max_iter, "n_z": 12}  # 1.1 mm of the pitch (0.1 mm)
     r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": params})
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
@@ -241,7 +243,89 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
         {k: f.get(k) for k in ("iteration", "eta_s", "eta_max_s", "eta_basis", "stop_value")} for f in timed]
     vol, attrs = download_volume(api, job_id)
     assert attrs["method"] == "tv"
-    assert vol["p0"].shape == (16, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
+    assert vol["p0"].shape == (12, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
     # the solver's answer, not the warm start: closer to the data than NEDNER's image
     used = json.loads(attrs["params"])
     assert used["warm_start"] == "nedner" and used["iterations"] <= max_iter and 0 < used["residual"] < 1
+
+
+#: a reconstruction job's phases in the order a person sees them (the test's own oracle of
+#: "forward": each stage's phase is the first whose words start it)
+PHASES = (("starting",), ("loading",), ("reconstructing",), ("warm start",), ("norm estimate",), ("iteration ",),
+          ("converged after ", "stopped after "), ("writing",), ("done",))
+
+
+def phase(stage: str) -> int:
+    for i, starts in enumerate(PHASES):
+        if stage.startswith(starts):
+            return i
+    raise AssertionError(f"a stage no phase names: {stage!r}")
+
+
+def test_tv_job_progress_only_moves_forward_and_says_when_the_rule_can_stop(shared_api):
+    """A tv job (λ continuation on: faint noise) over a real server, followed on its event stream,
+    and those events as ``fpscan jobs wait`` prints them: the stage's phase and the fraction never go back
+    (the pipeline's closing "reconstructing" no longer follows tv's "converged after k iterations");
+    while λ falls the stage says "λ continuation k/K" with K the result's continuation iterations,
+    and the rule's first possible stop, K + 3, is in every iteration's event; every event's bound on
+    the iterations left holds; a figure under 5 s is never shown 5 s or more after the first such
+    figure of its stretch (the worker's clock, ``elapsed_s``)."""
+    from fpscan.clients.cli.common import ProgressBar
+    from fpscan.physics.balls import Ball, ball_alines
+    from tests.waits import HANG_S
+
+    n, n_t, max_iter = 20, 160, 40
+    x = (np.arange(n) - (n - 1) / 2) * PITCH
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    balls = [Ball(x=2e-4, y=-1e-4, z=1.0e-3, radius=1.5e-4, amplitude=1.0),
+             Ball(x=-3e-4, y=2e-4, z=1.6e-3, radius=1e-4, amplitude=0.6)]
+    data = ball_alines(pos, balls, DT, n_t, C).T.reshape(n_t, n, n)
+    data = data + np.random.default_rng(0).standard_normal(data.shape) * np.abs(data).max() / 100  # 40 dB below the peak
+    ds = upload(shared_api, data.astype(np.float32))
+    r = shared_api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv",
+                                                      "params": {"n_z": 32, "max_iter": max_iter}})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    events = sse_events(shared_api, job_id, timeout=HANG_S)
+    assert [e["data"]["state"] for e in events if e["event"] == "state"][-1] == "succeeded", events[-3:]
+    progress = [e["data"] for e in events if e["event"] == "progress"]
+    stages = [p["stage"] for p in progress]
+    phases = [phase(s) for s in stages]
+    assert phases == sorted(phases), stages
+    fractions = [p["fraction"] for p in progress]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0, fractions
+    used = wait_job(shared_api, job_id)["params"]["result"]["params_used"]
+    K, last = used["continuation_iterations"], used["iterations"]
+    assert K > 0 and used["stop_armed_at"] == K + 3 and last >= K + 3, used
+    its = [p for p in progress if p.get("iteration")]
+    assert its, stages
+    for p in its:
+        k = p["iteration"]
+        continuing = re.fullmatch(rf"iteration {k}/{max_iter} \(λ continuation {k}/{K}\)", p["stage"])
+        assert bool(continuing) == (k <= K) and (k > K or re.fullmatch(rf"iteration {k}/{max_iter}", p["stage"])
+                                                  is None), p
+        assert p["stop_armed_at"] == K + 3 and p["stop_armed"] == (k >= K + 3), p
+        if p.get("iterations_left_max") is not None:  # the bound holds
+            assert last <= k + p["iterations_left_max"], (last, p)
+    low_since = None
+    for p in progress:
+        shown = p.get("eta_s")
+        if shown is not None and shown < 5:
+            low_since = p["elapsed_s"] if low_since is None else low_since
+            assert p["elapsed_s"] - low_since < 5, p
+        else:
+            low_since = None
+    # the CLI's lines of these events (`fpscan jobs wait`'s progress bar, off a terminal, a line
+    # each): phases and percentages only forward, the waiting phase named
+    bar = ProgressBar(f"job {job_id[:8]}", stream=io.StringIO(), period=0)
+    with bar:
+        for p in progress:
+            bar(p)
+    err = bar.stream.getvalue()
+    lines = [m for m in (re.match(rf"^job {job_id[:8]}: (?P<stage>.+?)  (?P<pct>\d+)%", line)
+                         for line in err.splitlines()) if m]
+    assert [phase(m["stage"]) for m in lines] == sorted(phase(m["stage"]) for m in lines), err
+    assert [int(m["pct"]) for m in lines] == sorted(int(m["pct"]) for m in lines), err
+    assert any(re.search(rf"\(λ continuation \d+/{K}\)$", m["stage"]) for m in lines), err
+    assert f"once λ has settled, from iteration {K + 3})" in err, err

@@ -6,15 +6,14 @@ tmpfs (skipped where mounting is not permitted)."""
 from __future__ import annotations
 
 import os
-import threading
 import time
 
 import h5py
 import httpx
 import numpy as np
-import psutil
 import pytest
 
+from tests.rss import MB, RssWatch, resident
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.service.small_disks import fill, tmpfs
 from tests.service.test_scans import N, make_plan, phantom, start_scan, wait_points
@@ -22,7 +21,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
-pytestmark = [needs_recon, pytest.mark.long(50)]
+pytestmark = [needs_recon, pytest.mark.long(95)]
 
 
 def new_sim(seed: int = 3):
@@ -99,38 +98,6 @@ def test_device_lost_mid_scan_then_resume_on_a_new_simulator(tmp_path):
             s.stop()
 
 
-class _RssWatch(threading.Thread):
-    """Watches a process's resident size against ``base`` + ``limit`` bytes (every 20 ms)
-    and kills the process once it is over, so that a server that takes memory without bound
-    fails the test instead of the machine; ``over`` is then the size it reached."""
-
-    def __init__(self, pid: int, base: int, limit: int) -> None:
-        super().__init__(daemon=True)
-        self.proc, self.base, self.limit = psutil.Process(pid), base, limit
-        self.peak, self.over = base, 0
-        self.done = threading.Event()
-
-    def run(self) -> None:
-        while not self.done.wait(0.02):
-            try:
-                rss = self.proc.memory_info().rss
-            except psutil.NoSuchProcess:
-                return
-            self.peak = max(self.peak, rss)
-            if rss - self.base > self.limit:
-                self.over = rss
-                self.proc.kill()
-                return
-
-    def check(self) -> None:
-        if self.over:
-            pytest.fail(f"the server's resident size grew from {self.base / MB:.0f} MB to {self.over / MB:.0f} MB "
-                        f"(killed at +{self.limit / MB:.0f} MB)")
-
-
-MB = 2**20
-
-
 @pytest.mark.timeout(300)
 def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
     """One A-line frame with a good CRC, run id and boot id but a data sequence number 2³¹
@@ -138,8 +105,8 @@ def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
     reason, ``/api/health`` answers throughout and names the fault, the server's resident size
     stays within 50 MB of what it was after a first complete scan (everything a scan loads is
     loaded then), the scan file holds every A-line sent before, and ``/resume`` completes the
-    scan bit for bit. The server's resident size is watched meanwhile and the server killed at
-    +50 MB: one that books every "missing" sequence number would take the machine's memory."""
+    scan bit for bit. The server's peak resident size is watched meanwhile (``tests.rss.RssWatch``)
+    and the server killed at +50 MB: one that books every "missing" sequence number would take the machine's memory."""
     from fpscan.driver.faults import FaultSpec
     from fpscan.driver.scanfile import read_scan
     from fpscan.driver.sources import BallSource
@@ -155,8 +122,7 @@ def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
             first = make_plan(c, n=5)  # 25 A-lines: the skip (at A-line 40) is not reached
             assert wait_job(c, start_scan(c, first["id"]))["state"] == "succeeded"
             plan = make_plan(c)
-            watch = _RssWatch(srv.service.pid, psutil.Process(srv.service.pid).memory_info().rss, 50 * MB)
-            watch.start()
+            watch = RssWatch(srv.service.pid, limit=50 * MB, what="the server").start()
             jid = start_scan(c, plan["id"])
             deadline = time.monotonic() + HANG_S
             while True:
@@ -177,7 +143,7 @@ def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
             assert f"sequence number {skip_to} is outside run" in progress["reason"], job
             health = c.get("/api/health").json()
             assert any("device fault" in p for p in health["problems"]), health
-            rss = psutil.Process(srv.service.pid).memory_info().rss
+            rss = resident(srv.service.pid)
             print(f"server RSS: {watch.base / MB:.1f} MB before the scan, peak {watch.peak / MB:.1f} MB, "
                   f"{rss / MB:.1f} MB after the device fault")
             assert rss - watch.base < 50 * MB
@@ -191,7 +157,66 @@ def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
             check_file(c, jid, truth([sim], tmp_path, plan["id"]), tmp_path)
     finally:
         if watch is not None:
-            watch.done.set()
+            watch.stop()
+        srv.stop()
+        sim.stop()
+
+
+def _wait_paused(c, jid: str) -> dict:
+    """The job once it is ``paused``; it must stay ``queued`` or ``running`` until then (a
+    ``failed`` job is not resumable) and ``/api/health`` must answer meanwhile."""
+    deadline = time.monotonic() + HANG_S
+    while True:
+        assert c.get("/api/health", timeout=10).status_code == 200
+        job = c.get(f"/api/jobs/{jid}").json()
+        if job["state"] == "paused":
+            return job
+        assert job["state"] in ("queued", "running") and time.monotonic() < deadline, job
+        time.sleep(0.05)
+
+
+@pytest.mark.timeout(300)
+def test_a_field_out_of_range_and_a_scanner_that_keeps_resetting_pause_the_scan(tmp_path):
+    """Two device faults in one scan, each pausing it (stage ``interrupted``, reason
+    ``device fault: …``), never failing it: an A-line whose ``dc_level`` is 0 (out of its range,
+    docs/protocol.md §5: the scan file would refuse it), then, after ``/resume``, a scanner that
+    resets every time it comes to A-line 60, nine times (the host recovers from 8). Each time the
+    scan file holds what the device sent before, ``/api/health`` names the fault, and the last
+    ``/resume`` (the device now sound) completes the scan bit for bit."""
+    from fpscan.driver.faults import FaultSpec
+    from fpscan.driver.scanfile import read_scan
+    from fpscan.driver.sources import BallSource
+
+    bad_at, reset_at = 40, 60
+    sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3,
+                                      faults=FaultSpec.parse(f"field={bad_at}:dc_level:0,reset={reset_at}:9")).start()
+    srv = Server(tmp_path / "srv", devices={"sim": sim.path}).start()
+    try:
+        with srv.client() as c:
+            plan = make_plan(c)
+            jid = start_scan(c, plan["id"])
+            reasons = ["dc_level = 0.0 V is out of its range (finite and > 0)",
+                       "the scanner reset 9 times during this scan; the host recovers from 8"]
+            for i, says in enumerate(reasons):
+                job = _wait_paused(c, jid)
+                progress = job["progress"]
+                assert progress["stage"] == "interrupted", job
+                assert progress["reason"].startswith("device fault: ") and says in progress["reason"], job
+                health = c.get("/api/health").json()
+                assert any("device fault" in p for p in health["problems"]), health
+                held = tmp_path / f"paused{i}.h5"
+                held.write_bytes(c.get(f"/api/scans/{jid}/file").content)
+                done = read_scan(held).completed
+                n_done = int(done.sum())  # the A-lines sent before the fault: a prefix of the plan
+                assert np.array_equal(done, np.arange(N * N) < n_done)
+                assert n_done == bad_at if i == 0 else bad_at < n_done <= reset_at, (i, n_done)
+                assert c.post(f"/api/scans/{jid}/resume").status_code == 200
+            final = wait_job(c, jid)
+            assert final["state"] == "succeeded", final
+            assert c.get("/api/health").json()["problems"] == []
+            assert sim.stats["resets"] == 9
+            check_file(c, jid, truth([sim], tmp_path, plan["id"]), tmp_path)
+    finally:
         srv.stop()
         sim.stop()
 

@@ -63,9 +63,11 @@ def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
             assert r.status_code == 201, r.text
             ds = r.json()["dataset_id"]
             ids = []
+            # the whole depth grid given (dz alone reaches c·t_last: rows, and the estimates stored with the job,
+            # would follow each speed; the older server's row below copies the first job's)
             for name, value in (("sound_speed", 1490.0), ("c", 1510.0)):  # c: the accepted alias
                 r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner",
-                                                           "params": {name: value, "dz": 1e-4}})
+                                                           "params": {name: value, "dz": 1e-4, "n_z": 15}})
                 assert r.status_code == 202, r.text
                 ids.append(r.json()["id"])
             for job_id, value in zip(ids, (1490.0, 1510.0), strict=True):
@@ -112,7 +114,7 @@ def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
             # the same request again under the older job's key is that job, not a conflict
             r = api.post("/api/reconstructions", headers={"Idempotency-Key": "older-server"},
                          json={"dataset_id": first["dataset_id"], "method": "ner",
-                               "params": {"sound_speed": 1480.0, "dz": 1e-4}})
+                               "params": {"sound_speed": 1480.0, "dz": 1e-4, "n_z": 15}})
             assert r.status_code in (200, 202) and r.json()["id"] == older["id"], r.text
     finally:
         srv.stop()

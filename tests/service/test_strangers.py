@@ -48,7 +48,7 @@ def _serve_with_file_limit(data_dir: Path, log_path: Path, env: dict) -> Service
             f"sys.argv = ['fpscan', 'serve', '--host', '127.0.0.1', '--port', '{port}', '--no-web']; "
             "runpy.run_module('fpscan', run_name='__main__', alter_sys=True)")
     full_env = clean_env(FPSCAN_DATA_DIR=str(data_dir), FPSCAN_TOKEN=TOKEN, PYTHONUNBUFFERED="1",
-                         FPSCAN_WARM_UP="false", OMP_NUM_THREADS="1", **env)
+                         FPSCAN_WARM_UP="false", FPSCAN_ALLOW_WEAK_TOKEN="true", OMP_NUM_THREADS="1", **env)
     srv = Service([sys.executable, "-c", boot], port=port, token=TOKEN, data_dir=data_dir, log_path=log_path,
                   env=full_env, cwd=Path(__file__).resolve().parents[2])
     try:

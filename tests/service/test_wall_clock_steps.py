@@ -12,6 +12,9 @@ Scans A and B of one plan are submitted before the step (B waits for the scanner
 C and a plan after it, while A runs. The stored wall times prove the step fell where it
 should (A finished "before" it started; B started "before" it was created); the oracle for
 the durations is the test's own monotonic clock around the run.
+
+The wall clock set forward past the datasets' maximum age between two uploads: retention by
+age, on the store's time, deletes nothing.
 """
 from __future__ import annotations
 
@@ -99,5 +102,42 @@ def test_durations_and_order_survive_the_wall_clock_set_back_an_hour(tmp_path, s
             assert tc["started"] > tb["finished"], (tb, tc)
             plans = [p["id"] for p in c.get("/api/plans").json()]
             assert plans == [p2.json()["id"], p1.json()["id"]], plans
+    finally:
+        srv.stop()
+
+
+def _upload(c, seed: int) -> str:
+    import io
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.save(buf, np.random.default_rng(seed).standard_normal((32, 8, 8)).astype(np.float32))
+    r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+               files={"file": (f"d{seed}.npy", buf.getvalue())})
+    assert r.status_code == 201, r.text
+    return r.json()["dataset_id"]
+
+
+def test_a_wall_clock_set_forward_past_the_datasets_max_age_deletes_no_dataset(tmp_path):
+    """Retention by age (``datasets_max_age_s`` one hour) counts on the store's monotonic time:
+    the wall clock set forward two hours between two uploads deletes nothing at the second
+    upload's retention (today's main compared wall times and deleted the first dataset, idle for
+    seconds). The stored wall times show the step."""
+    offset = tmp_path / "faketime"
+    offset.write_text("+0\n")
+    env = {"LD_PRELOAD": str(LIB), "FAKETIME_TIMESTAMP_FILE": str(offset), "FAKETIME_NO_CACHE": "1",
+           "DONT_FAKE_MONOTONIC": "1"}
+    srv = Server(tmp_path / "srv", env=env).start()
+    try:
+        with srv.client() as c:
+            r = c.put("/api/retention", json={"datasets_max_age_s": HOUR})
+            assert r.status_code == 200, r.text
+            first = _upload(c, 1)
+            offset.write_text("+2h\n")  # the wall clock steps forward two hours
+            second = _upload(c, 2)  # retention runs after it
+            rows = {d["dataset_id"]: d for d in c.get("/api/datasets").json()}
+            assert set(rows) == {first, second}, rows
+            assert rows[second]["created"] - rows[first]["created"] > 1.5 * HOUR, rows  # the step, as stored
     finally:
         srv.stop()

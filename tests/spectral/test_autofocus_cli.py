@@ -43,8 +43,9 @@ def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
     c = af["sound_speed"]
     assert abs(c - C_TRUE) / C_TRUE < 0.01, af  # plumbing; accuracy: test_autofocus.py
     assert f"sound speed {c:.1f} m/s (autofocus" in printed.out
-    # the final volume is on the chosen c's depth axis: z = c·t
-    assert res.z[1] - res.z[0] == pytest.approx(c * DT, rel=1e-6)
+    # the final volume is on the chosen c's default depth grid: rows of the pitch down to c·t_last
+    assert res.z[1] - res.z[0] == pytest.approx(DX, rel=1e-9)
+    assert len(res.z) == int(c * (NT - 1) * DT / DX) + 1
 
 
 @pytest.mark.parametrize("extra, reason", [

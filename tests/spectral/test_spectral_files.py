@@ -65,6 +65,22 @@ def test_unmix_parameters_are_the_result_files_canonical_json(tmp_path):
     assert not any((tmp_path / "nan").iterdir())  # nothing left behind
 
 
+def test_a_failed_unmix_write_leaves_no_temporary_file(tmp_path):
+    """unmix.h5 is written as every file the server puts in place (``fpscan.service.disk.file_replaced``):
+    a write that fails once its temporary file was made (coordinates that are not numbers)
+    removes it (today's main left ``.unmix.h5.tmp-<pid>`` until the next start-up's sweep), and
+    an existing unmix.h5 stays as it was."""
+    w, _, p0 = _phantom()
+    u = unmix(p0, w)
+    z, y, x = np.arange(10) * 1e-4, np.arange(12) * 1e-4, np.arange(14) * 1e-4
+    write_unmix(tmp_path, u, z, x, y, input_id="first")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(ValueError, match="could not convert"):
+        write_unmix(tmp_path, u, ["not a depth"] * 10, x, y, input_id="second")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before == ["so2.png", "unmix.h5"]
+    assert read_unmix(tmp_path / "unmix.h5")["input_id"] == "first"
+
+
 def test_unmix_reconstructions_checks():
     class R:
         def __init__(self, p0, z):

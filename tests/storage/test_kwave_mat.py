@@ -19,7 +19,17 @@ from fpscan.service import formats
 from fpscan.service.pipeline import reconstruct
 from fpscan.service.recon import kspace_line_recon
 from fpscan.service.storage.loader import detect_format, load_dataset
-from tests.storage.mat_files import MAT73_HEADER, write_mat5, write_mat73
+from tests.storage.mat_files import (
+    MAT73_HEADER,
+    mat5_compressed,
+    mat5_double,
+    mat5_element,
+    mat5_file,
+    mat5_matrix,
+    mat5_struct,
+    write_mat5,
+    write_mat73,
+)
 
 
 @pytest.fixture(scope="module")
@@ -165,3 +175,62 @@ def test_hostile_mat_files_are_refused_with_a_reason(kwave_mat, tmp_path):
     with pytest.raises(ValueError):
         load_dataset(tmp_path / "noise.mat")
     assert formats.describe(kwave_mat["v73"]) == "a k-Wave MAT-file"
+
+
+def test_every_field_is_sized_before_it_is_decoded(tmp_path):
+    """Each field of a MAT v5 variable, nested or not, is sized from what it declares before
+    scipy decodes any of it, against the budget ``max_bytes``: a struct field that is a cell
+    array declaring 2**26 elements (512 MiB of slots scipy allocates before it reads one: today's
+    main skipped structs and allocated them); a compressed element inside a variable (MATLAB
+    never writes one); a variable compressed three times (scipy reads one layer) is read, its
+    layers inflated here; an honest struct still reads."""
+    sensor = mat5_double("sensor_data", np.random.default_rng(3).standard_normal((8, 64)))
+    cell = mat5_matrix("", 1, (2**26, 1), b"")  # mxCELL_CLASS, no element stored
+    path = mat5_file(tmp_path / "cell.mat", sensor, mat5_compressed(mat5_struct("kgrid", {"dt": mat5_double("", 1e-8),
+                                                                                          "c": cell})))
+    with pytest.raises(ValueError, match="need more than the import's limit of 67108864 bytes"):
+        load_dataset(path, "kwave-mat", dx=1e-4, max_bytes=64 * 2**20)
+    inside = mat5_matrix("dt", 6, (1, 1), mat5_compressed(mat5_element(9, np.float64(1e-8).tobytes())))
+    with pytest.raises(ValueError, match="compressed element inside a variable"):
+        load_dataset(mat5_file(tmp_path / "inside.mat", sensor, inside), "kwave-mat", dx=1e-4)
+    thrice = mat5_compressed(mat5_compressed(mat5_compressed(mat5_struct("kgrid", {"dt": mat5_double("", 1e-8)}))))
+    ds = load_dataset(mat5_file(tmp_path / "thrice.mat", sensor, thrice), "kwave-mat", dx=1e-4)
+    assert ds.dt == 1e-8 and ds.data.shape == (64, 8)
+
+
+def test_a_variable_declaring_100k_dimensions_is_refused_as_corrupt(tmp_path):
+    """A MAT v5 variable's dimensions are read only up to 64 (k-Wave's arrays have at most 4):
+    a few kB of compressed file declaring 100 000 dimensions (whose product, a Python int
+    multiplied per dimension, took CPU quadratic in their number) is refused as corrupt."""
+    dims = mat5_compressed(mat5_matrix("sensor_data", 6, (2,) * 100_000, b""))
+    path = mat5_file(tmp_path / "dims.mat", dims)
+    assert path.stat().st_size < 10_000
+    with pytest.raises(ValueError, match=r"corrupt \(a variable declares 100000 dimensions; at most 64 are read\)"):
+        load_dataset(path, "kwave-mat", dt=1e-8, dx=1e-4)
+    honest = mat5_file(tmp_path / "honest.mat", mat5_double("sensor_data", np.ones((4, 16))))
+    assert load_dataset(honest, "kwave-mat", dt=1e-8, dx=1e-4).data.shape == (16, 4)
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_the_inflated_stream_is_held_once(tmp_path, compressed):
+    """The MAT v5 walker holds the file's variables uncompressed once: written into one buffer
+    as they are read (compressed or not) and handed to ``scipy.io.loadmat`` as it is, not
+    gathered in parts and joined (which held them twice). Oracle: Python's allocations
+    (``tracemalloc``) while a file holding a 24 MiB variable beside the small data is read."""
+    import tracemalloc
+
+    held = 24 * 2**20
+    junk = np.random.default_rng(5).standard_normal(held // 8).reshape(-1, 1024)
+    path = write_mat5(tmp_path / "junk.mat", {"sensor_data": np.ones((4, 16)), "junk": junk}, compressed=compressed)
+    del junk
+    load_dataset(path, "kwave-mat", dt=1e-8, dx=1e-4)  # imports and caches warmed
+    tracemalloc.start()
+    try:
+        ds = load_dataset(path, "kwave-mat", dt=1e-8, dx=1e-4)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert ds.data.shape == (16, 4)
+    print(f"MAT v5 ({'compressed' if compressed else 'uncompressed'}) holding {held} B of variables: "
+          f"peak {peak} B ({peak / held:.2f}x)")
+    assert peak < 1.5 * held, peak / held

@@ -18,6 +18,8 @@ from fpscan.service.formats.npy import time_axes
 from tests.waits import HANG_S
 
 N_Y, N_X, N_T, DT, DX = 10, 12, 48, 8e-9, 60e-6
+#: the default depth rows (fpscan.service.recon.depth): the pitch down to c·t_last = 0.56 mm at 1500 m/s
+N_Z = int(1500.0 * (N_T - 1) * DT / DX) + 1
 
 
 def _tyx() -> np.ndarray:
@@ -98,8 +100,8 @@ def _recon(*args: str) -> subprocess.CompletedProcess:
                           timeout=HANG_S)
 
 
-@pytest.mark.parametrize("name, axes, shape", [("yxt", "y,x,t", f"{N_T}x{N_Y}x{N_X}"),
-                                               ("xt", "x,t", f"{N_T}x{N_X}")])
+@pytest.mark.parametrize("name, axes, shape", [("yxt", "y,x,t", f"{N_Z}x{N_Y}x{N_X}"),
+                                               ("xt", "x,t", f"{N_Z}x{N_X}")])
 def test_cli_refuses_undeclared_and_reads_declared(files, tmp_path, name, axes, shape):
     res = _recon(str(files[name]), "--dt", "8ns", "--dx", "60um", "--out", str(tmp_path / "refused"))
     assert res.returncode == 2, res.stderr

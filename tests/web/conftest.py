@@ -38,42 +38,61 @@ def download_dir(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def browser(download_dir):
-    """A headless Chromium with a fresh profile, downloads going to ``download_dir``."""
+def start_chromium():
+    """A factory of headless Chromiums, each with a fresh profile, all quit at the module's end:
+    ``start_chromium(download_dir=None, extra_args=(), logs=("browser",))`` starts one with
+    ``CHROMIUM_FLAGS`` and the command-line arguments ``extra_args``, downloads going to
+    ``download_dir`` (when given), keeping the WebDriver logs ``logs`` (``"browser"``: the
+    console; ``"performance"``: the DevTools events). Skips where it cannot start."""
     webdriver = pytest.importorskip("selenium.webdriver", reason="selenium not installed (pip install -e '.[test]')")
     from selenium.webdriver.chrome.service import Service
 
-    chromium, driver_path = _browser_paths()
-    os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium Manager download anything
-    profile = tempfile.mkdtemp(prefix="fpscan-chromium-")
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for flag in CHROMIUM_FLAGS:
-        opts.add_argument(flag)
-    opts.add_argument(f"--user-data-dir={profile}")
-    opts.add_experimental_option("prefs", {
-        "download.default_directory": str(download_dir),
-        "download.prompt_for_download": False,
-        "safebrowsing.enabled": False,
-    })
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    try:
-        drv = webdriver.Chrome(options=opts, service=Service(executable_path=driver_path))
-    except Exception as exc:  # the browser cannot start here
-        shutil.rmtree(profile, ignore_errors=True)
-        pytest.skip(f"headless Chromium could not start: {exc}")
-    try:
-        drv.execute_cdp_cmd("Browser.setDownloadBehavior",
-                            {"behavior": "allow", "downloadPath": str(download_dir)})
-    except Exception:  # older drivers: the prefs above do it
-        pass
-    drv.set_page_load_timeout(HANG_S)  # hang guards (tests.waits), not speed expectations
-    drv.set_script_timeout(HANG_S)
-    yield drv
-    drv.quit()
-    shutil.rmtree(profile, ignore_errors=True)
+    started: list[tuple[object, str]] = []
+
+    def start(download_dir: Path | None = None, extra_args=(), logs=("browser",)):
+        chromium, driver_path = _browser_paths()
+        os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium Manager download anything
+        profile = tempfile.mkdtemp(prefix="fpscan-chromium-")
+        opts = webdriver.ChromeOptions()
+        opts.binary_location = chromium
+        for flag in [*CHROMIUM_FLAGS, *extra_args]:
+            opts.add_argument(flag)
+        opts.add_argument(f"--user-data-dir={profile}")
+        if download_dir is not None:
+            opts.add_experimental_option("prefs", {
+                "download.default_directory": str(download_dir),
+                "download.prompt_for_download": False,
+                "safebrowsing.enabled": False,
+            })
+        opts.set_capability("goog:loggingPrefs", dict.fromkeys(logs, "ALL"))
+        try:
+            drv = webdriver.Chrome(options=opts, service=Service(executable_path=driver_path))
+        except Exception as exc:  # the browser cannot start here
+            shutil.rmtree(profile, ignore_errors=True)
+            pytest.skip(f"headless Chromium could not start: {exc}")
+        started.append((drv, profile))
+        if download_dir is not None:
+            try:
+                drv.execute_cdp_cmd("Browser.setDownloadBehavior",
+                                    {"behavior": "allow", "downloadPath": str(download_dir)})
+            except Exception:  # older drivers: the prefs above do it
+                pass
+        drv.set_page_load_timeout(HANG_S)  # hang guards (tests.waits), not speed expectations
+        drv.set_script_timeout(HANG_S)
+        return drv
+
+    yield start
+    for drv, profile in started:
+        try:
+            drv.quit()  # type: ignore[attr-defined]
+        finally:
+            shutil.rmtree(profile, ignore_errors=True)
 
 
+@pytest.fixture(scope="module")
+def browser(start_chromium, download_dir):
+    """A headless Chromium with a fresh profile, downloads going to ``download_dir``."""
+    return start_chromium(download_dir=download_dir)
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -87,7 +87,7 @@ def test_parameters_with_units_and_enlarged_mip(browser, base, screenshots, tmp_
     print(rows)
     assert rows["shape.dx"] == "100 µm" and rows["used.dx"] == "100 µm" and rows["used.dy"] == "100 µm", rows
     assert rows["shape.dt"] == "12 ns" and rows["used.dt"] == "12 ns", rows
-    assert rows["used.dz"] == "18 µm" and rows["used.sound_speed"] == "1500 m/s", rows  # dz = c·dt
+    assert rows["used.dz"] == "100 µm" and rows["used.sound_speed"] == "1500 m/s", rows  # dz = the pitch, its noise too
     mem = job["params"]["memory_estimate"]
     unit, size = ("MiB", mem / 2**20) if mem >= 2**20 else ("KiB", mem / 2**10)
     assert rows["memory_estimate"] == f"{float(f'{size:.3g}'):g} {unit}", (rows["memory_estimate"], mem)

@@ -94,11 +94,18 @@ class StoreBase(DiskReserve):
         heartbeat), acknowledged to no one, so not flushed one by one (``synchronous=NORMAL``:
         a power cut may lose the last reports, never a commit before them, nor break the
         database); the next durable commit flushes them with it (the WAL is written in order).
+        A transaction still open at the end (its ROLLBACK failed in :meth:`_tx_once`) is rolled back
+        first: SQLite refuses to change the safety level inside one ("Safety level may not be
+        changed inside a transaction"), which would mask the block's own error (a full disk no
+        longer recognised as one) and leave the connection at ``NORMAL``.
         Source: https://sqlite.org/pragma.html#pragma_synchronous, https://sqlite.org/wal.html."""
         self._db.execute("PRAGMA synchronous=NORMAL")
         try:
             yield
         finally:
+            if self._db.in_transaction:
+                with contextlib.suppress(sqlite3.Error):  # the block's own error is the one raised
+                    self._db.execute("ROLLBACK")
             self._db.execute("PRAGMA synchronous=FULL")
 
     def _tx_once(self, fn: Callable[[sqlite3.Connection], _T], durable: bool = True) -> _T:

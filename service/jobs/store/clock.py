@@ -20,6 +20,8 @@ each with a store of its own, share one time line:
 A job records both at each of its moments (``created``/``created_mono``, ``started``/
 ``started_mono``, ``finished``/``finished_mono``): its durations (``queued_s``, ``run_s``) are
 differences of store times, immune to steps of the wall clock; the wall times are for display.
+A dataset records both at its upload (``created``/``created_mono``) and its latest use (its
+meta's ``last_used``/``used_mono``): retention by age counts on the store time.
 Durations across a reboot count the time the machine was off by the wall clock, clamped at 0.
 The boot is ``/proc/sys/kernel/random/boot_id`` (Linux); elsewhere the boot's wall time to
 the minute (a wall step of a minute or more between two stores' opening then starts a new
@@ -70,8 +72,10 @@ def boot_id() -> str:
     return f"wall-{round((time.time() - time.monotonic()) / 60.0) * 60}"
 
 
-#: the store times a job records, each with the wall time of the same moment
-_MOMENTS = (("created_mono", "created"), ("started_mono", "started"), ("finished_mono", "finished"))
+#: the store times recorded, each with the wall time of the same moment: (table, store time, wall time)
+_MOMENTS = (("jobs", "created_mono", "created"), ("jobs", "started_mono", "started"),
+            ("jobs", "finished_mono", "finished"), ("datasets", "created_mono", "created"),
+            ("datasets", "used_mono", "COALESCE(json_extract(meta, '$.last_used'), created)"))
 
 
 class StoreClock:
@@ -124,8 +128,8 @@ class StoreClock:
             if isinstance(stored, dict) and stored.get("boot") == boot:
                 offset = float(stored["offset"])
             else:
-                union = " UNION ALL ".join(f"SELECT {m} AS mono, {w} AS wall FROM jobs WHERE {m} IS NOT NULL"
-                                           for m, w in _MOMENTS)
+                union = " UNION ALL ".join(f"SELECT {m} AS mono, {w} AS wall FROM {t} WHERE {m} IS NOT NULL"
+                                           for t, m, w in _MOMENTS)
                 last = db.execute(f"SELECT mono, wall FROM ({union}) ORDER BY mono DESC LIMIT 1").fetchone()
                 wall, mono = wall_time(), time.monotonic()
                 if last is None:

@@ -1,15 +1,16 @@
 """The job store's datasets: each imported dataset's metadata (JSON) under its id.
 
 A dataset's ``dedup_key`` finds an upload already stored (:meth:`DatasetRecords.find_datasets`)
-and its ``last_used`` (:meth:`DatasetRecords.touch_dataset`) is where retention by age counts
-from.
+and its ``used_mono`` (the store's time of its upload or latest use,
+:meth:`DatasetRecords.touch_dataset`; :mod:`fpscan.service.jobs.store.clock`) is where retention
+by age counts from, whatever the wall clock did; its ``created`` and meta's ``last_used`` are the
+wall times of those moments, for display.
 """
 from __future__ import annotations
 
 import json
 
 from fpscan.service.jobs.store.base import StoreBase
-from fpscan.service.jobs.store.clock import wall_time
 from fpscan.service.jobs.store.schema import Jobs
 from fpscan.service.names import current_names
 
@@ -23,10 +24,12 @@ class DatasetRecords(StoreBase):
     """
 
     def put_dataset(self, dataset_id: str, meta: dict) -> None:
+        """Store ``dataset_id``'s ``meta``, uploaded now (its wall and store times)."""
         def write() -> None:
             with self._lock:
-                self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
-                                 (dataset_id, json.dumps(meta), wall_time()))
+                wall, mono = self._now()
+                self._db.execute("INSERT INTO datasets (id, meta, created, created_mono, used_mono) "
+                                 "VALUES (?, ?, ?, ?, ?)", (dataset_id, json.dumps(meta), wall, mono, mono))
         self._write(write)
 
     def get_dataset(self, dataset_id: str) -> dict | None:
@@ -35,19 +38,22 @@ class DatasetRecords(StoreBase):
         return None if row is None else current_names(json.loads(row["meta"]))  # an earlier release's c too
 
     def list_datasets(self) -> Jobs:
-        """Every stored dataset as ``{"id", "meta", "created"}``, oldest first (the order they
-        were stored in, SQLite's ``rowid``: whatever the wall clock did)."""
+        """Every stored dataset as ``{"id", "meta", "created", "used_mono"}`` (``created``: the
+        upload's wall time, UNIX s; ``used_mono``: the store time of its upload or latest use, s),
+        oldest first (the order they were stored in, SQLite's ``rowid``: whatever the wall clock did)."""
         with self._lock:
-            rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY rowid").fetchall()
-        return [{"id": r["id"], "meta": current_names(json.loads(r["meta"])), "created": r["created"]} for r in rows]
+            rows = self._db.execute("SELECT id, meta, created, used_mono FROM datasets ORDER BY rowid").fetchall()
+        return [{"id": r["id"], "meta": current_names(json.loads(r["meta"])), "created": r["created"],
+                 "used_mono": r["used_mono"] if r["used_mono"] is not None else r["created"]} for r in rows]
 
     def touch_dataset(self, dataset_id: str) -> None:
-        """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):
-        retention by age counts from then."""
+        """Record that ``dataset_id`` was asked for again (its ``used_mono``, the store's time, and
+        its meta's ``last_used``, the wall time, UNIX s): retention by age counts from then."""
         def write() -> None:
             with self._lock:
-                self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
-                                 (wall_time(), dataset_id))
+                wall, mono = self._now()
+                self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?), used_mono = ? "
+                                 "WHERE id = ?", (wall, mono, dataset_id))
         self._write(write)
 
     def find_datasets(self, dedup_key: str) -> list[str]:

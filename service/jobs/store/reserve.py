@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from fpscan.service.disk import is_disk_full
+from fpscan.service.disk import free_bytes, is_disk_full
 
 __all__ = ["DB_RESERVE_BYTES", "DiskReserve"]
 
@@ -130,12 +130,8 @@ class DiskReserve:
         if self.reserve_spent is None:
             return True
         self._reserve_look = time.monotonic()
-        try:
-            import shutil
-
-            room = shutil.disk_usage(self.path.parent).free >= 2 * self.reserve_bytes + (1 << 20)
-        except OSError:
-            room = False
+        free = free_bytes(self.path.parent)
+        room = free is not None and free >= 2 * self.reserve_bytes + (1 << 20)
         with self._reserve_lock:
             if room and self.reserve_spent is not None and self._write_reserve():
                 log.info("job store: the disk has room again; its reserve is back")

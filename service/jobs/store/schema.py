@@ -2,9 +2,10 @@
 
 The tables: ``jobs`` (one row per job: kind, state, parameters and progress as JSON, the
 unique ``Idempotency-Key``, the lease, attempts, result and error), ``events`` (each job's
-state and progress events, numbered per job), ``plans``, ``datasets`` and ``config``
+state and progress events, numbered per job), ``plans``, ``datasets`` (each with the store
+times of its upload and latest use, ``created_mono`` and ``used_mono``) and ``config``
 (key -> JSON value). A database of an earlier version gains the columns added since
-(:data:`_ADDED_COLUMNS`) when it is opened (:func:`apply_schema`).
+(:data:`_ADDED_COLUMNS`, :data:`_ADDED_DATASET_COLUMNS`) when it is opened (:func:`apply_schema`).
 
 A job's ``seq`` is the store's sequence: one more than the largest when it is inserted (in the
 transaction that inserts it), so it orders the jobs as they were submitted, whatever the wall
@@ -75,7 +76,9 @@ CREATE TABLE IF NOT EXISTS plans (
 CREATE TABLE IF NOT EXISTS datasets (
     id TEXT PRIMARY KEY,
     meta TEXT NOT NULL,
-    created REAL NOT NULL
+    created REAL NOT NULL,
+    created_mono REAL,
+    used_mono REAL
 );
 CREATE TABLE IF NOT EXISTS config (
     key TEXT PRIMARY KEY,
@@ -90,6 +93,9 @@ _JOB_COLUMNS = ("id", "kind", "state", "params", "progress", "idempotency_key", 
 #: columns added after the first release, with their definitions (added to an older database at open)
 _ADDED_COLUMNS = {"earlier_attempts": "TEXT NOT NULL DEFAULT '[]'", "seq": "INTEGER", "created_mono": "REAL",
                   "started_mono": "REAL", "finished_mono": "REAL"}
+#: columns added to ``datasets`` after the first release: the store times of its upload and of its
+#: latest use (retention by age counts from ``used_mono``)
+_ADDED_DATASET_COLUMNS = {"created_mono": "REAL", "used_mono": "REAL"}
 #: the indexes on added columns (made once they are there)
 _INDEXES = """
 CREATE INDEX IF NOT EXISTS jobs_seq ON jobs(seq);
@@ -127,4 +133,28 @@ def apply_schema(db: sqlite3.Connection) -> None:
             if db.in_transaction:
                 db.execute("ROLLBACK")
             raise
+    _add_dataset_times(db)
     db.executescript(_INDEXES)
+
+
+def _add_dataset_times(db: sqlite3.Connection) -> None:
+    """Give a database of an earlier version the datasets' store times, in one transaction:
+    their wall times (the upload's ``created``, the latest use's ``last_used`` of its meta), the
+    best there is, as the jobs' were (the store's time starts from them:
+    :mod:`fpscan.service.jobs.store.clock`)."""
+    have = {r["name"] for r in db.execute("PRAGMA table_info(datasets)").fetchall()}
+    added = [column for column in _ADDED_DATASET_COLUMNS if column not in have]
+    if not added:
+        return
+    db.execute("BEGIN IMMEDIATE")
+    try:
+        for column in added:
+            db.execute(f"ALTER TABLE datasets ADD COLUMN {column} {_ADDED_DATASET_COLUMNS[column]}")
+        db.execute("UPDATE datasets SET created_mono = created WHERE created_mono IS NULL")
+        db.execute("UPDATE datasets SET used_mono = MAX(created, COALESCE(json_extract(meta, '$.last_used'), created))"
+                   " WHERE used_mono IS NULL")
+        db.execute("COMMIT")
+    except BaseException:
+        if db.in_transaction:
+            db.execute("ROLLBACK")
+        raise

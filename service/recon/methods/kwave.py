@@ -236,8 +236,8 @@ def warm_up(dtypes: Sequence[str]) -> None:
             kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
 
 
-METHOD = Method(name="kwave", title="k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", needs_grid=True,
-                options_model=Options, run=run,
+METHOD = Method(name="kwave", title="k-Wave compatible (kspaceLineRecon / kspacePlaneRecon; their own depth grid, "
+                "n_t rows of c·dt)", needs_grid=True, options_model=Options, run=run,
                 source="k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
                 peak_memory=peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
                 kernel_modules=("fpscan.service.recon.kwave",))

@@ -38,9 +38,9 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     positivity : bool
         Clip negative p0 to 0 (default False).
     n_z : int or None
-        Output depth samples, 2..65536 (None: n_t).
+        Output depth samples, 2..65536 (None: down to c t_last; ``fpscan.service.recon.depth``).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+        Output depth spacing in m, [1e-9, 0.1] (None: the lateral pitch, c dt where that is finer).
 
     Examples
     --------

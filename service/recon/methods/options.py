@@ -39,7 +39,7 @@ from fpscan.service.recon.limits import (
     UPSAMPLE_RANGE,
 )
 
-__all__ = ["DEPRECATED_NAMES", "renamed_options", "SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
+__all__ = ["DEPRECATED_NAMES", "renamed_options", "SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "DEPTH_ROWS_DEFAULT", "DEPTH_SPACING_DEFAULT", "Eps",
            "Upsample", "NZ", "Dz", "Dtype", "Flag", "kernel_rule", "check_flag", "check_dtype_name", "Device",
            "DeviceOption", "check_device_name"]
 
@@ -189,10 +189,10 @@ Eps = Annotated[Annotated[float, Field(ge=EPS_RANGE[0], le=EPS_RANGE[1])] | None
 #: lateral upsampling factor, in ``UPSAMPLE_RANGE``
 Upsample = Annotated[Annotated[int, Field(ge=UPSAMPLE_RANGE[0], le=UPSAMPLE_RANGE[1])] | None,
                      BeforeValidator(kernel_rule("check_upsample"))]
-#: output depth samples (None: n_t), in ``N_Z_RANGE``
+#: output depth samples (None: the default, ``fpscan.service.recon.depth``), in ``N_Z_RANGE``
 NZ = Annotated[Annotated[int, Field(ge=N_Z_RANGE[0], le=N_Z_RANGE[1])] | None,
                BeforeValidator(kernel_rule("check_n_z"))]
-#: output depth spacing in m (None: c·dt), in ``DZ_RANGE``
+#: output depth spacing in m (None: the default, ``fpscan.service.recon.depth``), in ``DZ_RANGE``
 Dz = Annotated[Annotated[float, Field(ge=DZ_RANGE[0], le=DZ_RANGE[1])] | None,
                BeforeValidator(kernel_rule("check_dz"))]
 #: working and output precision
@@ -611,15 +611,23 @@ class DeviceOption(BaseModel):
     device: Device = Field(DEFAULT_DEVICE, description="where it runs: auto (the GPU where one fits), cpu or cuda")
 
 
+#: the default depth grid in words (``fpscan.service.recon.depth``, every method's rule): the rows, the spacing
+DEPTH_ROWS_DEFAULT = "down to c·t_last, as deep as the record reaches"
+DEPTH_SPACING_DEFAULT = "the lateral pitch, c·dt where that is finer"
+
+
 class DepthOptions(BaseModel):
     """Mix-in: the output depth grid (``n_z`` samples at ``dz``).
 
     Attributes
     ----------
     n_z : int or None
-        Output depth samples in ``N_Z_RANGE`` = 2..65536; None (default): ``n_t``.
+        Output depth samples in ``N_Z_RANGE`` = 2..65536; None (default): as deep as the record
+        reaches, c·t_last (``fpscan.service.recon.depth``, every method's rule).
     dz : float or None
-        Output depth spacing in m, in ``DZ_RANGE`` = [1e-9, 0.1] m; None (default): c dt.
+        Output depth spacing in m, in ``DZ_RANGE`` = [1e-9, 0.1] m; None (default): the lateral
+        pitch, or c·dt where the pitch is finer. One of the two given alone keeps the other's
+        default: ``n_z`` alone is that many rows of the pitch.
 
     Examples
     --------
@@ -636,7 +644,9 @@ class DepthOptions(BaseModel):
     Value error, dz must be in [1e-09, 0.1] m, got 1.0
     """
 
-    n_z: NZ = Field(None, description="output depth samples", json_schema_extra={"unit": "1", "derived": "n_t"})
+    n_z: NZ = Field(None, description="output depth samples (given alone: rows of the default dz)",
+                    json_schema_extra={"unit": "1", "derived": DEPTH_ROWS_DEFAULT})
     dz: Dz = Field(None, description="output depth spacing; with the input's c·t_last it sets the working depth "
                    "rows, counted in the memory admission",
-                   json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length", "derived": "c·dt"})
+                   json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length",
+                                      "derived": DEPTH_SPACING_DEFAULT})

@@ -440,7 +440,7 @@ def get(name: str) -> Method:
     --------
     >>> from fpscan.service.recon.methods import get
     >>> get("kwave").title
-    'k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)'
+    'k-Wave compatible (kspaceLineRecon / kspacePlaneRecon; their own depth grid, n_t rows of c·dt)'
     >>> get("fbp")
     Traceback (most recent call last):
     ...
@@ -493,10 +493,12 @@ def default_for(kind: str) -> str:
 
 
 def _rules(model: type[MethodOptions]) -> dict[str, str]:
-    """Each field's rule, as its JSON schema without default/description/title."""
+    """Each field's rule, as its JSON schema without default/description/title (and ``derived``, the words of
+    a method's own default: tv's depth grid)."""
     out = {}
     for name, schema in model.model_json_schema()["properties"].items():
-        out[name] = repr({k: v for k, v in sorted(schema.items()) if k not in ("default", "description", "title")})
+        out[name] = repr({k: v for k, v in sorted(schema.items())
+                          if k not in ("default", "description", "title", "derived")})
     return out
 
 

@@ -173,7 +173,7 @@ def docs_table() -> str:
 
 def default_text(name: str, *, code: bool = False) -> str:
     """The default of option ``name`` in words, per method where they differ: ``"1e-06"``,
-    ``"n_t"`` (a ``None`` default: the field's ``derived``), ``"false (tv: true)"`` (the most
+    ``"down to c·t_last, ..."`` (a ``None`` default: the field's ``derived``), ``"false (tv: true)"`` (the most
     common first).
 
     Parameters
@@ -195,8 +195,10 @@ def default_text(name: str, *, code: bool = False) -> str:
     Examples
     --------
     >>> from fpscan.service.recon.methods import default_text
-    >>> default_text("eps"), default_text("n_z"), default_text("dz")
-    ('1e-06', 'n_t', 'c·dt')
+    >>> default_text("eps"), default_text("upsample")
+    ('1e-06', '1')
+    >>> default_text("n_z")  # a None default: the field's ``derived``, per method where they differ
+    "down to c·t_last, as deep as the record reaches (tv: down to the record's last echo above the noise)"
     >>> default_text("positivity")  # doctest: +ELLIPSIS
     'false (...tv...: true)'
     >>> default_text("positivity", code=True)  # doctest: +ELLIPSIS

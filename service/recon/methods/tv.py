@@ -23,8 +23,10 @@ from fpscan.service.recon.limits import (
     TOL_RANGE,
 )
 from fpscan.service.recon.methods.options import (
+    NZ,
     DepthOptions,
     DeviceOption,
+    Dz,
     Flag,
     MethodOptions,
     NufftOptions,
@@ -36,9 +38,10 @@ if TYPE_CHECKING:
     from fpscan.service.progress import Progress
     from fpscan.service.recon.dataset import PointDataset
     from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.tv.formulation import TvProblem
     from fpscan.service.recon.tv.grid import TvGrid
 
-__all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
+__all__ = ["Options", "run", "problem", "problem_arguments", "SOLVER_OPTIONS", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
            "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "SUMMARY", "STOP_WAITS_FOR", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
@@ -61,12 +64,14 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     dtype : {"float32", "float64"}
         Working and output precision (default ``"float32"``).
     n_z : int or None
-        Output depth samples, 2..65536 (None: with dz None too, down to the depth of the
-        record's last echo above the noise; ``fpscan.service.recon.tv.grid``; else n_t).
+        Output depth samples, 2..65536 (None: down to the depth of the record's last echo above
+        the noise; ``fpscan.service.recon.tv.grid``).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, the lateral pitch (an
-        isotropic grid at the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared
-        sensor band f), c dt where that band reaches the record's Nyquist frequency; else c dt).
+        Output depth spacing in m, [1e-9, 0.1] (None: the lateral pitch (an isotropic grid at
+        the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared sensor band f), c dt
+        where that band reaches the record's Nyquist frequency). One given alone keeps the
+        other's default (every method's rule, ``fpscan.service.recon.depth``, with tv's band and
+        depth).
     positivity : bool
         Constrain p0 >= 0 (default True).
     lam : float or None
@@ -99,15 +104,24 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     """
 
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
+    # the depth grid's rule with tv's own depth and band (fpscan.service.recon.tv.grid)
+    n_z: NZ = Field(None, description=DepthOptions.model_fields["n_z"].description,
+                    json_schema_extra={"unit": "1", "derived": "down to the record's last echo above the noise"})
+    dz: Dz = Field(None, description=DepthOptions.model_fields["dz"].description,
+                   json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length",
+                                      "derived": "the lateral pitch, c·dt where that is finer, c/(2 f) at a "
+                                                 "declared sensor band f"})
     lam: Lam = Field(None, description="TV weight λ in the data's units",
                      json_schema_extra={"unit": "data units",
                                         "derived": "from the noise level and the warm start's misfit"})
     max_iter: Iterations = Field(DEFAULT_MAX_ITER, description="the iteration cap of the solver",
                                  json_schema_extra={"unit": "1"})
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "
-                     "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
-                     "(0: run every iteration); smaller runs longer and stops nearer the minimiser (0.002: "
-                     "1.1-2.5x the iterations; docs/performance.md)", json_schema_extra={"unit": "1"})
+                     "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations at λ "
+                     "(0: run every iteration); smaller runs longer and stops nearer the minimiser (half the "
+                     "default: 1.1-1.5x the iterations on sparse noisy scans), but never before λ's continuation "
+                     "ends + 3 iterations, where a noiseless scan stops whatever tol (docs/tv-measurements.md)",
+                     json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
                                   "setting time_limit_s caps it): when reached the result says converged false, "
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})
@@ -178,16 +192,99 @@ def run(ds: PointDataset, sound_speed: float, options: Options, step: Progress) 
     """
     from fpscan.service.recon.tv.reconstruct import reconstruct_tv
 
+    o = options  # validated: a field is None only where its default is (the model fills the others)
+    return reconstruct_tv(**problem_arguments(ds, sound_speed, o), max_iter=o.max_iter or DEFAULT_MAX_ITER,
+                          tol=DEFAULT_TOL if o.tol is None else o.tol, time_limit=o.time_limit or DEFAULT_TIME_LIMIT,
+                          debias=bool(o.debias), device=o.device or DEFAULT_DEVICE, progress=_saying_why(step))
+
+
+#: tv's options that set its solver or where it runs, not its problem (`problem` takes none of them)
+SOLVER_OPTIONS = ("max_iter", "tol", "time_limit", "debias", "device")
+
+
+def problem(ds: PointDataset, sound_speed: float, options: Options) -> TvProblem:
+    """The problem tv solves for ``ds`` (``fpscan.service.recon.tv.reconstruct.tv_problem``): the operator,
+    the data, the warm start, the grid and λ that `run` with the same options solves, built on
+    the CPU by its own set-up.
+
+    Parameters
+    ----------
+    ds : PointDataset
+        As `run`'s.
+    sound_speed : float
+        Speed of sound, m/s.
+    options : Options
+        The validated options (`SOLVER_OPTIONS` play no part).
+
+    Returns
+    -------
+    TvProblem
+        ``fpscan.service.recon.tv.formulation.TvProblem``.
+
+    Raises
+    ------
+    ValueError
+        No A-lines, or what ``tv_problem`` refuses.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.tv import Options, problem
+    >>> p0 = np.zeros((12, 16)); p0[5:8, 7:10] = 1.0
+    >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
+    >>> pb = problem(GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0).to_points(), 1500.0,
+    ...              Options(n_z=12))
+    >>> pb.operator.dims, pb.data.shape, pb.operator.dtype  # A-lines (n_points, n_t); tv's float32
+    ((12, 16), (16, 24), dtype('float32'))
+    """
+    from fpscan.service.recon.tv.reconstruct import tv_problem
+
+    return tv_problem(**problem_arguments(ds, sound_speed, options))
+
+
+def problem_arguments(ds: PointDataset, sound_speed: float, o: Options) -> dict[str, Any]:
+    """`reconstruct_tv`'s and ``tv_problem``'s arguments that set the problem: the data and the
+    options (one owner for `run` and `problem`).
+
+    Parameters
+    ----------
+    ds : PointDataset
+        As `run`'s.
+    sound_speed : float
+        Speed of sound, m/s.
+    o : Options
+        The validated options.
+
+    Returns
+    -------
+    dict
+        ``data``, ``dt`` (s), ``c`` (m/s), ``positions``, ``weights``, ``grid``, ``t0`` (s),
+        ``positivity``, ``lam``, ``whole_record``, ``eps``, ``dtype``, ``n_z``, ``dz`` (m),
+        ``bandwidth`` (Hz or None).
+
+    Raises
+    ------
+    ValueError
+        No A-lines.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.tv import Options, problem_arguments
+    >>> ds = GridDataset(np.zeros((8, 2)), dx=1e-4, dt=1e-8, sound_speed=1500.0).to_points()
+    >>> a = problem_arguments(ds, 1480.0, Options())
+    >>> a["c"], a["dtype"], a["positivity"], a["lam"]
+    (1480.0, 'float32', True, None)
+    """
     if ds.alines.shape[0] == 0:
         raise ValueError("the input has no A-lines to reconstruct")
-    o = options  # validated: a field is None only where its default is (the model fills the others)
-    return reconstruct_tv(ds.alines, ds.dt, sound_speed, positions=ds.positions, weights=ds.weights, grid=ds.grid,
-                          t0=ds.t0, max_iter=o.max_iter or DEFAULT_MAX_ITER, positivity=bool(o.positivity),
-                          lam=o.lam, tol=DEFAULT_TOL if o.tol is None else o.tol,
-                          time_limit=o.time_limit or DEFAULT_TIME_LIMIT, debias=bool(o.debias),
-                          whole_record=bool(o.whole_record), eps=o.eps or DEFAULT_EPS,
-                          dtype=o.dtype or DEFAULT_DTYPE, n_z=o.n_z, dz=o.dz, device=o.device or DEFAULT_DEVICE,
-                          progress=_saying_why(step), bandwidth=declared_bandwidth(ds.meta))
+    return dict(data=ds.alines, dt=ds.dt, c=sound_speed, positions=ds.positions, weights=ds.weights, grid=ds.grid,
+                t0=ds.t0, positivity=bool(o.positivity), lam=o.lam, whole_record=bool(o.whole_record),
+                eps=o.eps or DEFAULT_EPS, dtype=o.dtype or DEFAULT_DTYPE, n_z=o.n_z, dz=o.dz,
+                bandwidth=declared_bandwidth(ds.meta))
 
 
 #: the dataset's ``meta`` key of a sensor bandwidth the scan declares, Hz
@@ -425,11 +522,13 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
     if not (dx and dt and c):
         return warm
-    dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)  # the depth axis's checks
-    check_depth(n_t, dt, c, dz, n_z, t0 or 0.0)
     chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
                           record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
                           n_y=n_y)
+    from fpscan.service.recon.planar import depth_axis
+
+    depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))  # the depth axis's checks
+    check_depth(n_t, dt, c, chosen.dz, chosen.n_z, t0 or 0.0)
     from fpscan.physics.grid_sizes import pad_sizes
 
     points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))

@@ -26,8 +26,9 @@ set by the scan's geometry, not by what one A-line shows above its noise:
   the record's last echo above the noise (`data_extent`: the last sample where any A-line, or
   the energy of all of them from there on, beats the noise; a margin of 2 % of the record) —
   a source deeper than that would be heard later; ``whole_record`` images the whole record's
-  depth. A dz or n_z the caller gives is kept, and the other then follows the record's own
-  rule (dz = c dt, n_z = n_t), as before;
+  depth. A dz or n_z the caller gives is kept, and the other follows this default (every
+  method's rule, `fpscan.service.recon.depth`: the spacing the image's lattice resolves, as
+  deep as the record reaches; tv's depth is its signal's end);
 - **the record kept**: every sample on which the model of that image draws — until the
   farthest sensor hears the image's last row, sqrt(z_last² + ρ²) / c with ρ the largest lateral
   distance between a sensor and a column of the image (``reach``), and the margin (for the
@@ -57,6 +58,7 @@ import numpy.typing as npt
 
 from fpscan.constants import C_DEFAULT
 from fpscan.physics.resample import resampled_length
+from fpscan.service.recon.depth import depth_grid
 
 __all__ = ["TvGrid", "RecordFacts", "noise_sigma", "data_extent", "record_facts", "tv_grid"]
 
@@ -394,9 +396,9 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     bandwidth : float, optional
         A sensor bandwidth the caller declares, Hz: the band, whatever the lateral pitch.
     dz, n_z : optional
-        The image's depth spacing (m) and rows, kept as given; with neither given the band's
-        c / (2 f_c) (c dt at full band) down to the signal's end, with one given the other
-        c dt or n_t (the record's own rule).
+        The image's depth spacing (m) and rows, kept as given; the one not given follows the
+        default: the band's c / (2 f_c) (c dt at full band), down to the signal's end
+        (`fpscan.service.recon.depth.depth_grid`, every method's rule, with tv's band and depth).
     t0 : float, optional
         Time of sample 0, s.
     whole_record : bool, optional
@@ -421,7 +423,7 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     ------
     ValueError
         n_t < 2, non-positive dt, c, bandwidth or pitch, a negative reach; ``facts`` of another
-        record length.
+        record length; ``dz`` or ``n_z`` out of range (``fpscan.service.recon.checks.OptionError``).
 
     Examples
     --------
@@ -470,17 +472,12 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         band, reason = float(c) / (2.0 * float(pitch)), "lateral"
     if band is not None and band >= 0.5 / dt * (1 - 1e-9):  # at or above the record's Nyquist frequency
         band, reason = None, "nyquist"
-    # the image's depth grid: at the band's own spacing down to the signal's end, or as given
-    if dz is None and n_z is None:
-        dz_out = float(c) / (2.0 * band) if band is not None else float(c) * dt
-        end = n_t if whole_record else _signal_end(n_t, data, time_axis, sigma, facts)
-        deepest = float(c) * (float(t0) + (end - 1) * dt)  # heard by the sensor straight above at the end
-        n_z_out = max(2, int(math.floor(deepest / dz_out * (1 + 1e-9))) + 1)
-    else:  # a caller who sets either keeps today's rule for the other (dz = c dt, n_z = n_t)
-        dz_out = c * dt if dz is None else float(dz)
-        n_z_out = n_t if n_z is None else int(n_z)
-    if not math.isfinite(dz_out) or dz_out <= 0:
-        raise ValueError(f"dz must be finite and > 0 m, got {dz!r}")
+    # the image's depth grid, every method's rule (`fpscan.service.recon.depth.depth_grid`): dz and n_z as
+    # given, else the spacing the band resolves, c / (2 f_c) (the pitch itself at the lateral band, c dt at
+    # full band), and the rows down to the depth the signal's end reaches (heard straight above it)
+    spacing = float(c) / (2.0 * band) if band is not None else None
+    end = n_t if whole_record or n_z is not None else _signal_end(n_t, data, time_axis, sigma, facts)
+    dz_out, n_z_out = depth_grid(end, dt, float(c), spacing, dz=dz, n_z=n_z, t0=float(t0))
     if whole_record or reach is None:
         kept, extent_reason = n_t, "record"
     else:

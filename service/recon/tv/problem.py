@@ -468,6 +468,11 @@ class Model:
         with step("preconditioner"):
             return apply_weight(self.P, image)
 
+    def precondition(self, v: np.ndarray) -> np.ndarray:
+        """P v of an image (NER's weight, `fpscan.service.recon.tv.preconditioner`; v may be
+        overwritten), on the solver's device."""
+        return apply_weight(self.P, v)
+
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1
         pair = self.op._pair

@@ -5,7 +5,10 @@
 `POLL_S` seconds from inside long steps (the operator's checkpoints, the proximal map's
 inner steps), so that a ``progress`` that raises to cancel is heard within about a second
 even when one iteration takes minutes. The stages: "warm start", "norm estimate",
-"iteration k/max_iter" (`fpscan.service.recon.tv.stopping`) and the last one, `final_stage`.
+"iteration k/max_iter" ("iteration k/max_iter (λ continuation k/K)" while λ still falls, with the
+first iteration the stopping rule can stop at, K + 3, known from the first: `fpscan.service.recon.tv.stopping`)
+and the last one, `final_stage`. The pipeline keeps the last one as the stage until the result
+is written (`fpscan.service.progress.Forward`).
 """
 from __future__ import annotations
 

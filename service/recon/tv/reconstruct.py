@@ -13,32 +13,25 @@ The problem and its source (Arridge et al., Phys. Med. Biol. 61 (2016) 8908): th
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from fpscan.constants import C_DEFAULT
-from fpscan.physics import workspace
-from fpscan.service.progress import Progress, span
+from fpscan.service.progress import Progress
 from fpscan.service.recon import checks, limits
 from fpscan.service.recon import device as devices
 from fpscan.service.recon.reconstruction import Reconstruction
 from fpscan.service.recon.tv.fista import MARGIN, debias_refit, run_fista
-from fpscan.service.recon.tv.geometry import geometry_numbers
-from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
-from fpscan.service.recon.tv.problem import (
-    Model,
-    Record,
-    check_options,
-    start_image,
-    warm_start,
-    working_record,
-)
+from fpscan.service.recon.tv.formulation import TvProblem, problem_of, set_up
+from fpscan.service.recon.tv.lam import Continuation
+from fpscan.service.recon.tv.problem import Record, check_options, start_image, working_record
 from fpscan.service.recon.tv.progress import Reporter, final_stage
 from fpscan.service.recon.tv.result import result_params
 
-__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "reconstruct_tv"]
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "reconstruct_tv", "tv_problem"]
 
 #: default iteration limit of one model-based reconstruction (``fpscan.service.recon.limits``)
 DEFAULT_MAX_ITER = limits.DEFAULT_MAX_ITER
@@ -76,6 +69,7 @@ def reconstruct_tv(
     continuation: bool = True,
     progress: Progress | None = None,
     device: str = "auto",
+    callback: Callable[[int, Any, float], None] | None = None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (package doc).
 
@@ -116,7 +110,8 @@ def reconstruct_tv(
         Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
         given, `fpscan.service.recon.tv.grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
         (the pitch, or a declared band; c dt at full band), down to the last echo's depth; a
-        given one is kept and the other follows the record's own rule (c dt, n_t).
+        given one is kept and the other keeps its default (`fpscan.service.recon.depth`'s rule,
+        every method's).
     periodic : bool, optional
         Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
         itself does: several times cheaper for large volumes, but sources near an edge wrap
@@ -134,7 +129,7 @@ def reconstruct_tv(
         A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
         band instead of the one the lateral pitch resolves (`fpscan.service.recon.tv.problem`).
     whole_record : bool, optional
-        Keep the whole record and, with neither dz nor n_z given, image its whole depth
+        Keep the whole record and, without n_z, image its whole depth
         (`fpscan.service.recon.tv.problem`; `fpscan.service.recon.tv.grid.tv_grid`). Default False.
     continuation : bool, optional
         Start the TV weight at λ · D₀ and lower it to λ (`fpscan.service.recon.tv.lam`; default
@@ -144,7 +139,9 @@ def reconstruct_tv(
         ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
         step of the norm estimate ("norm estimate") and every iteration ("iteration
-        k/max_iter"), and again with the same fraction at most every 0.2 s inside long steps
+        k/max_iter", "iteration k/max_iter (λ continuation k/K)" while λ still falls: an
+        `fpscan.service.progress.IterationStage` with the rule's value, ``tol`` and the first
+        iteration at which the rule can stop the run, K + 3), and again with the same fraction at most every 0.2 s inside long steps
         (the operator's checkpoints: `PlanarOperator` ``checkpoint``); it may raise to cancel
         (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
         when one iteration takes minutes.
@@ -154,6 +151,12 @@ def reconstruct_tv(
         pair, the preconditioner and the solver's steps all run there (`fpscan.service.recon.gpu`,
         `fpscan.service.recon.tv.kernels`); the operator needs the sensors on the image's lateral grid
         nodes (a scan plan's lattice).
+    callback : callable, optional
+        ``callback(k, x, J)`` after iteration k (1, 2, ...) of the solver: its iterate x
+        ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` (Pa; the solver's array: NumPy, CuPy on a GPU; valid
+        during the call only, copy it to keep it) and J(x) = ½‖A x − g‖² + λ TV(x) at λ (Pa²,
+        exact: the solver computes A x anyway; `tv_problem`'s ``objective``). It may raise to
+        stop the run (the exception propagates).
 
     Returns
     -------
@@ -164,11 +167,15 @@ def reconstruct_tv(
         why — noiseless data), ``warm_discrepancy`` (D₀, `fpscan.service.recon.tv.lam`),
         ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
         continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
-        λ), ``iterations``, ``residual``
+        λ), ``stop_armed_at`` (the first iteration at which the stopping rule could stop the run:
+        ``continuation_iterations`` + 3; None for ``tol`` 0), ``iterations``, ``residual``
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
         ``geometry_kept`` (‖BA‖ and the noise image were kept from a run on this geometry),
+        ``exact_from`` (the first iteration of the solver's exact phase, whose fixed point is J's
+        minimiser: `fpscan.service.recon.tv.fista`; None where the run ended in the preconditioned
+        phase, as a run to the default ``tol`` does),
         ``solver``, ``debias``, ``time_limit``, ``solve_s``; and the grid: ``dt`` (the
         record's), ``record_n_t`` (the record's samples kept: after them the model predicts
         silence), ``extent_reason`` ("image", "record"), ``operator_dt``, ``operator_n_t``,
@@ -242,7 +249,7 @@ def reconstruct_tv(
                       positivity=positivity, max_iter=max_iter, tol=tol, rdtype=rdtype, eps=eps, t0=t0,
                       periodic=periodic, memory_limit=memory_limit, time_limit=time_limit, debias=debias,
                       bandwidth=bandwidth, whole_record=whole_record, continuation=continuation, dt=dt,
-                      report=report, started=started)
+                      report=report, started=started, callback=callback)
 
     if device == "cpu":
         result = solve("cpu")
@@ -258,34 +265,25 @@ def _solve(record: Record, dev: str, *, c: float, dx: float | None, positions: n
            weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None, lam: float | None,
            positivity: bool, max_iter: int, tol: float, rdtype: np.dtype, eps: float, t0: float, periodic: bool, memory_limit: int | None, time_limit: float,
            debias: bool, bandwidth: float | None, whole_record: bool, continuation: bool, dt: float,
-           report: Reporter, started: float) -> Reconstruction:
+           report: Reporter, started: float, callback: Callable[[int, Any, float], None] | None) -> Reconstruction:
     """`reconstruct_tv` on ``record`` from the warm start on, its operator pair on ``dev``
     (``"cpu"`` or ``"cuda"``; the warm start runs there too); the caller adds the device's facts
     to the params."""
-    warm, pos = warm_start(record, c, dx, positions, weights, grid, dtype=rdtype, t0=t0, eps=eps,
-                            positivity=positivity, memory_limit=memory_limit,
-                            progress=span(report, 0.0, 0.05, "warm start"), device=dev)
-    report(0.05, "warm start")
-    workspace.release()  # the warm start's work arrays (free now) make way for the operator's
-    # A, and B = P Aᵀ: the exact adjoint with NER's k-space weight P = k_z / |k|
-    model = Model(record, warm, c, pos, t0=t0, eps=eps, dtype=rdtype, periodic=periodic, checkpoint=report.poll,
-                   memory_limit=memory_limit, device=dev)
-    report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
-    # the step 1 / L, L ≈ ‖BA‖, and the noise image's RMS (per unit σ): the geometry's, kept per geometry
-    gain, noise_rms, geometry_kept = geometry_numbers(model, span(report, 0.05, 0.1, "norm estimate"))
-    L = MARGIN * gain
-    if not L > 0:
-        raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
-    report(0.1, "norm estimate")
+    # the warm start, A and B = P Aᵀ, the step's ‖BA‖, the noise image and λ's rule: the problem
+    # `tv_problem` gives a user (`fpscan.service.recon.tv.formulation`)
+    parts = set_up(record, dev, report, c=c, dx=dx, positions=positions, weights=weights, grid=grid, dtype=rdtype,
+                   eps=eps, t0=t0, positivity=positivity, periodic=periodic, memory_limit=memory_limit)
+    warm, model, rule = parts.warm, parts.model, parts.rule
+    geometry_kept = parts.geometry_kept
+    L = MARGIN * parts.gain
     # λ: given, or the rule of the image's noise level and the warm start's discrepancy; continued from λ D₀
-    rule = DiscrepancyRule(record.sigma * noise_rms, record.noise_norm)
     schedule = Continuation(record.noise_norm) if continuation else None
     first = [model.xp.asarray(start_image(warm, rdtype, positivity))]  # handed over: run_fista reuses its memory
     axes, warm_params = (warm.z, warm.x, warm.y), warm.params
-    del warm  # its float64 image: the solver's x is a copy (float32) or that image itself
+    del warm, parts  # its float64 image: the solver's x is a copy (float32) or that image itself
     solved = run_fista(model.forward, model.B, model.g_dev, first, rule if lam is None else lam, L, positivity,
                     max_iter, tol, started, time_limit, report, model.residual, poll=report.poll,
-                    continuation=schedule)
+                    continuation=schedule, callback=callback, precondition=model.precondition)
     debiased = bool(debias and solved.stop_reason != "time limit" and bool((solved.x > 0).any()))
     if debiased:  # the amplitudes refit at λ = 0 on tv's support, from tv's image (handed over)
         box = [solved]
@@ -299,3 +297,83 @@ def _solve(record: Record, dev: str, *, c: float, dx: float | None, positions: n
                      lam_auto=lam is None, geometry_kept=geometry_kept, debiased=debiased, started=started)
     report(1.0, final_stage(solved.stop_reason, solved.iterations))
     return Reconstruction(solved.x.astype(rdtype, copy=False), *axes, params)
+
+
+def tv_problem(
+    data: np.ndarray,
+    dt: float,
+    c: float = C_DEFAULT,
+    *,
+    dx: float | None = None,
+    positions: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    grid: np.ndarray | Sequence[npt.ArrayLike] | None = None,
+    lam: float | None = None,
+    positivity: bool = True,
+    dtype: npt.DTypeLike = np.float64,
+    eps: float = 1e-6,
+    dz: float | None = None,
+    n_z: int | None = None,
+    t0: float = 0.0,
+    periodic: bool = False,
+    memory_limit: int | None = None,
+    bandwidth: float | None = None,
+    whole_record: bool = False,
+) -> TvProblem:
+    """The problem `reconstruct_tv` solves for these data, for any solver: the operator A (a
+    ``pylops.LinearOperator``), the data g it fits, the warm start, the grid and λ
+    (`fpscan.service.recon.tv.formulation.TvProblem`), made by `reconstruct_tv`'s own set-up
+    (`fpscan.service.recon.tv.formulation.set_up`), on the CPU.
+
+    p0 = argmin_{p >= 0} J(p) = ½ ‖A p − g‖² + λ TV(p) (Arridge et al., PMB 61 (2016) 8908): hand
+    ``operator``, ``data``, ``gradient`` and ``lam`` to pylops' or pyproximal's solvers (e.g.
+    ``pyproximal.optimization.primaldual.PrimalDual`` on ``pylops.VStack([operator, gradient])``),
+    start them from ``warm_start``, and compare with tv by ``objective``.
+
+    Parameters
+    ----------
+    data, dt, c, dx, positions, weights, grid, lam, positivity, dtype, eps, dz, n_z, t0, periodic, memory_limit, bandwidth, whole_record
+        As `reconstruct_tv`'s (data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` with ``dx``, or A-lines
+        ``(n_points, n_t)`` with ``positions``; s, m/s, m, Pa, Hz).
+
+    Returns
+    -------
+    TvProblem
+        ``operator``, ``data``, ``warm_start``, ``grid``, ``lam``, ``positivity``, the axes ``z``,
+        ``x``, ``y`` (m), ``gradient``, ``preconditioner``, ``params``; ``objective(p)`` = J(p).
+        Its cost: the warm start, 2.5 operator pairs for the step's norm and the noise image
+        (none when this geometry's are kept) and one forward for the automatic λ.
+
+    Raises
+    ------
+    ValueError
+        As `reconstruct_tv` (bad options, data, grid; the memory above ``memory_limit``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.tv.reconstruct import reconstruct_tv, tv_problem
+    >>> p0 = np.zeros((12, 16)); p0[5:8, 7:10] = 1.0
+    >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
+    >>> pb = tv_problem(g, 1e-4 / 1500, 1500.0, dx=1e-4, n_z=12)
+    >>> r = reconstruct_tv(g, 1e-4 / 1500, 1500.0, dx=1e-4, n_z=12, max_iter=10)
+    >>> pb.lam == r.params["lam"], pb.warm_start.shape == r.p0.shape
+    (True, True)
+    >>> bool(pb.objective(r.p0) < pb.objective(pb.warm_start))  # tv lowers J
+    True
+    >>> tv_problem(g, 1e-4 / 1500, 1500.0)
+    Traceback (most recent call last):
+    ...
+    ValueError: grid data need dx (or give positions for A-lines)
+    """
+    lam, _, _, _ = check_options(lam, 1, 0.0, DEFAULT_TIME_LIMIT)
+    bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
+    rdtype = checks.check_dtype(dtype)
+    if positions is None and dx is None:
+        raise ValueError("grid data need dx (or give positions for A-lines)")
+    record = working_record(data, dt, c, dx, positions, grid, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
+                            whole_record=bool(whole_record))
+    parts = set_up(record, "cpu", Reporter(None), c=c, dx=dx, positions=positions, weights=weights, grid=grid,
+                   dtype=rdtype, eps=eps, t0=t0, positivity=positivity, periodic=periodic, memory_limit=memory_limit)
+    return problem_of(parts, record, lam, positivity)

@@ -16,6 +16,7 @@ import numpy as np
 from fpscan.service.recon.tv.fista import MARGIN, Solved
 from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
 from fpscan.service.recon.tv.problem import Model, Record
+from fpscan.service.recon.tv.stopping import WINDOW
 
 __all__ = ["result_params"]
 
@@ -79,11 +80,11 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
     ...                   debiased=False, started=time.monotonic())
     >>> p["method"], p["warm_start"], p["residual"], p["norm_A"], p["stop_reason"], p["solver"]
     ('tv', 'ner', 0.0, 2.0, 'converged', 'FISTA preconditioned by NER')
-    >>> p["lam_note"].startswith("the data show no noise")
-    True
+    >>> p["lam_note"].startswith("the data show no noise"), p["exact_from"]
+    (True, None)
     """
     chosen, o = record.grid, options
-    x, it, stop_reason, change, Ax, L, lam = solved
+    x, it, stop_reason, change, Ax, L, lam, exact_from = solved
     gw_norm = float(np.linalg.norm(record.g))
     res = Ax - record.g
     params = dict(warm_params)
@@ -94,6 +95,7 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
                   lam_factor=rule.factor if lam_auto else None, warm_discrepancy=rule.warm_discrepancy,
                   lam_start_factor=schedule.start_factor if schedule else 1.0,
                   continuation_iterations=schedule.iterations if schedule else 0,
+                  stop_armed_at=((schedule.iterations if schedule else 0) + WINDOW) if o["tol"] > 0 else None,
                   noise_sigma=record.sigma, image_noise=rule.image_noise,
                   noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
                   max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
@@ -103,6 +105,7 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
                   solver="FISTA preconditioned by " + ("NER" if model.pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,
                   operator_pairs=model.operator_pairs, geometry_kept=geometry_kept, debias=debiased,
+                  exact_from=exact_from,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=o["time_limit"], solve_s=time.monotonic() - started)
     if lam_auto and lam == 0:  # said, not silent: on noiseless data the automatic λ has nothing to scale

@@ -26,8 +26,10 @@ class StoppingRule:
     ``observe(bb, nn)`` takes an iteration's ‖x_k − x_{k−1}‖² and ‖x_k‖²; ``verdict(k, elapsed)``
     gives the stop reason at iteration k after ``elapsed`` s ("converged", "time limit",
     "iterations") or None to go on; ``stage(k)`` the progress stage carrying the rule's value so
-    far (`fpscan.service.progress.IterationStage`); ``at_lambda(k)`` whether the window holds
-    iterations at λ only.
+    far, the tolerance and `armed_at` (`fpscan.service.progress.IterationStage`; while λ still
+    falls its text is "iteration k/N (λ continuation k/K)"); ``at_lambda(k)`` whether the window
+    holds iterations at λ only. The rule cannot stop the run before iteration `armed_at` =
+    ``falling`` + `WINDOW`, which the progress and its ETA count as certain.
 
     Parameters
     ----------
@@ -60,6 +62,10 @@ class StoppingRule:
     (0.001, 'converged')
     >>> StoppingRule(0.01, 10, 60.0).verdict(10, elapsed=1.0), StoppingRule(0.01, 10, 60.0).verdict(4, 61.0)
     ('iterations', 'time limit')
+    >>> waiting = StoppingRule(0.01, 100, 60.0, falling=50)  # λ falls in iterations 1-50
+    >>> waiting.observe(1e-6, 1.0); stage = waiting.stage(7)
+    >>> waiting.armed_at, stage, stage.armed, stage.armed_at
+    (53, 'iteration 7/100 (λ continuation 7/50)', False, 53)
     """
 
     def __init__(self, tol: float, max_iter: int, time_limit: float, falling: int = 0) -> None:
@@ -77,11 +83,20 @@ class StoppingRule:
         not fall)."""
         return self.falling == 0 or k - self.falling >= WINDOW
 
+    @property
+    def armed_at(self) -> int:
+        """The first iteration at which the rule can stop the run: the continuation's
+        iterations and a window at λ after them, known before the first iteration."""
+        return self.falling + WINDOW
+
     def stage(self, k: int) -> IterationStage:
         # the stage "iteration k/N" carries the rule's value (its window so far) and tol, not yet
-        # armed while λ still falls (the rule cannot stop the run there)
+        # armed while λ still falls (the rule cannot stop the run there), and the iteration from
+        # which it can; while λ falls its text says so: "iteration k/N (λ continuation k/K)"
         waiting = not self.at_lambda(k) and self.tol > 0
-        return IterationStage(k, self.max_iter, max(self.steps), self.tol, armed=not waiting)
+        text = f"iteration {k}/{self.max_iter} (λ continuation {k}/{self.falling})" if k <= self.falling else None
+        return IterationStage(k, self.max_iter, max(self.steps), self.tol, armed=not waiting, text=text,
+                              armed_at=self.armed_at if self.tol > 0 else None)
 
     def verdict(self, k: int, elapsed: float) -> str | None:
         if 0.0 <= self.change < self.tol and self.at_lambda(k):
