@@ -483,7 +483,14 @@ class Model:
     def residual(self, Ax: np.ndarray) -> float:
         if self.xp is not np:
             return float(self.xp.linalg.norm(Ax - self.g_dev))
-        return float(np.linalg.norm(Ax - self.g))
+        if Ax.shape != self.g.shape or not (Ax.flags.c_contiguous and self.g.flags.c_contiguous):
+            return float(np.linalg.norm(Ax - self.g))
+        # compiled, on every core: numpy's norm sums in BLAS, whose OpenBLAS threads spin for about
+        # 0.1 s after it, and the adjoint that follows ran on one core of two (tv at half the
+        # paper's size 1.2x from 1 to 2 cores; docs/performance.md, "CPU scaling on the 2-core machine")
+        from fpscan.service.recon.tv.fista import difference_norm
+
+        return float(difference_norm(Ax.reshape(-1), self.g.reshape(-1)))
 
     @property
     def operator_pairs(self) -> float:
