@@ -37,7 +37,7 @@ MIN_BYTES = 4 << 20
 LARGEST = 1.5
 
 #: a miss drops the free buffers lent in none of the last AGE takes
-AGE = 8
+AGE = 64
 
 _LOCK = threading.Lock()
 _BUFFERS: list[np.ndarray] = []
