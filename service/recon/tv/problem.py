@@ -488,7 +488,7 @@ class Model:
         # compiled, on every core: numpy's norm sums in BLAS, whose OpenBLAS threads spin for about
         # 0.1 s after it, and the adjoint that follows ran on one core of two (tv at half the
         # paper's size 1.2x from 1 to 2 cores; docs/performance.md, "CPU scaling on the 2-core machine")
-        from fpscan.service.recon.tv.fista import difference_norm
+        from fpscan.physics.array_kernels import difference_norm
 
         return float(difference_norm(Ax.reshape(-1), self.g.reshape(-1)))
 
