@@ -55,7 +55,7 @@ def _best(fn, repeat):
     return best
 
 
-def _fft_time(n_t, n_y, n_x, repeat, fast=False):
+def fft_time(n_t, n_y, n_x, repeat, fast=False):
     import scipy.fft
 
     n_tt = 2 * n_t
@@ -186,8 +186,8 @@ def _run(method, n_t, n_y, n_x, repeat, queue):
     warm()
     t = _best(fn, repeat)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base
-    t_fft = _fft_time(n_t, n_y, n_x, repeat)
-    t_fast = _fft_time(n_t, n_y, n_x, repeat, fast=True)
+    t_fft = fft_time(n_t, n_y, n_x, repeat)
+    t_fast = fft_time(n_t, n_y, n_x, repeat, fast=True)
     queue.put((t, t_fft, t_fast, peak / data.nbytes, note))
 
 

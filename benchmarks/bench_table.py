@@ -13,10 +13,13 @@ per size, content irrelevant to timing):
 - ``write``: ``fpscan.service.storage.results.write_result`` (volume.h5 + MIP PNGs) of that
   reconstruction in the same process, over ``lib`` (target <= 0.3);
 - ``http``: one job over HTTP, submit to ``succeeded`` (the end of the job's events stream, as
-  ``fpscan.clients.http.Client.wait`` waits), on a server whose
-  worker is warm, over ``lib`` (target <= 1.3); the library call and the job alternate
-  (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
-- ``job recon`` / ``job write``: the job's own timings (``params.result.timings``);
+  ``fpscan.clients.http.Client.wait`` waits), with ``--fetch`` then its ``volume.h5`` fetched
+  (``fpscan.clients.http.Client.download_volume``, to a file), on a server whose
+  worker is warm, over ``lib`` (target <= 1.3; with ``--fetch`` <= 1.2); the library call and the
+  job alternate (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
+- ``fetch``: with ``--fetch``, the download's part of ``http``;
+- ``job load`` / ``job recon`` / ``job write``: the job's own timings (``params.result.timings``: the
+  worker reading its input, reconstructing, writing the result folder);
 - ``cli``: ``fpscan recon FILE.npy`` wall time (a fresh process: imports, reconstruction, writing);
 - ``load``: 1-minute load average when the row was measured;
 - ``second job``: with ``--second-job`` every row is measured twice, the second time while
@@ -30,6 +33,7 @@ the worker's warm-up) over ``lib`` (target <= 2).
     .venv/bin/python benchmarks/bench_table.py                   # 128, 226, 256 at n_t 256
     .venv/bin/python benchmarks/bench_table.py --sizes 128 --n-t 256 --methods ner --no-cli   # quick
     .venv/bin/python benchmarks/bench_table.py --second-job     # also under a second job's load
+    .venv/bin/python benchmarks/bench_table.py --sizes 192 --n-t 512 --methods ner --no-cli --fetch --repeat 5
 
 Starts its own server (127.0.0.1, free port) and stops it. The child processes (library, server,
 CLI) run with bytecode caching on (``PYTHONDONTWRITEBYTECODE`` removed), as an installed package
@@ -146,8 +150,10 @@ def _upload(c, path: Path) -> str:
     return r.json()["dataset_id"]
 
 
-def job(c, ds: str, method: str) -> tuple[float, dict]:
-    """Submit a job and wait for it: (submit -> succeeded seconds, the job)."""
+def job(c, ds: str, method: str, fetch: Path | None = None) -> tuple[float, dict]:
+    """Submit a job and wait for it: (submit -> succeeded seconds, the job); with ``fetch`` (a file
+    path) then download its ``volume.h5`` there as the HTTP client does, inside the time (the
+    download's own seconds in the job's ``"fetch_s"``)."""
     t = time.perf_counter()
     r = c.post("/api/reconstructions", json={"dataset_id": ds, "method": method, "params": {"dtype": "float32"}})
     r.raise_for_status()
@@ -157,11 +163,29 @@ def job(c, ds: str, method: str) -> tuple[float, dict]:
     with c.stream("GET", f"/api/jobs/{jid}/events") as events:
         for _ in events.iter_lines():
             pass
-    dt = time.perf_counter() - t
     j = c.get(f"/api/jobs/{jid}").json()
     if j["state"] != "succeeded":
         raise RuntimeError(f"job {jid} {j['state']}: {j.get('error')}")
-    return dt, j
+    if fetch is not None:
+        f0 = time.perf_counter()
+        _client(str(c.base_url)).download_volume(jid, fetch)
+        j["fetch_s"] = time.perf_counter() - f0
+        dt = time.perf_counter() - t
+        fetch.unlink()
+        return dt, j
+    return time.perf_counter() - t, j
+
+
+_CLIENTS: dict = {}
+
+
+def _client(url: str):
+    """One `fpscan.clients.http.Client` per server, kept (its connection too) across jobs."""
+    if url not in _CLIENTS:
+        from fpscan.clients.http import Client
+
+        _CLIENTS[url] = Client(url, token=TOKEN)
+    return _CLIENTS[url]
 
 
 def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -171,6 +195,8 @@ def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--methods", nargs="+", default=["ner", "nedner", "kwave"])
     ap.add_argument("--repeat", type=int, default=3, help="rounds of (library call, HTTP job); medians")
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line column")
+    ap.add_argument("--fetch", action="store_true",
+                    help="the http column includes fetching the result's volume.h5 with the HTTP client")
     ap.add_argument("--second-job", action="store_true",
                     help="measure every row again while another client keeps a second job running "
                          "(server with 2 workers)")
@@ -270,15 +296,16 @@ def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Librar
 def _rounds(args: argparse.Namespace, lib: Library, c, m: str, n: int, p: Path, ds: str) -> dict:
     """``--repeat`` rounds of (library call + worker function + writer, HTTP job): medians."""
     got: dict[str, list] = {}
-    for _ in range(max(1, args.repeat)):
+    for i in range(max(1, args.repeat)):
         r = lib.call(m, p)
-        dt, j = job(c, ds, m)
+        dt, j = job(c, ds, m, fetch=p.with_name(f"fetched-{m}-{n}-{i}.h5") if args.fetch else None)
         tm = j["params"]["result"]["timings"]
         for key, v in (("lib_s", r["lib_s"]), ("worker_s", r["worker_s"]), ("write_s", r["write_s"]),
-                       ("http_s", dt), ("job_recon_s", tm["reconstruct_s"]),
-                       ("job_write_s", tm["write_s"]), ("load", os.getloadavg()[0])):
+                       ("http_s", dt), ("fetch_s", j.get("fetch_s")), ("job_load_s", tm["load_s"]),
+                       ("job_recon_s", tm["reconstruct_s"]), ("job_write_s", tm["write_s"]),
+                       ("load", os.getloadavg()[0])):
             got.setdefault(key, []).append(v)
-    row = {k: _median(v) for k, v in got.items()}
+    row = {k: None if None in v else _median(v) for k, v in got.items()}
     row["http_over_lib"] = _median([h / v for h, v in zip(got["http_s"], got["lib_s"])])
     return row
 
@@ -321,13 +348,14 @@ def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, 
     print(f"\nfpscan bench_table: n_t = {args.n_t}, float32, {args.repeat} rounds; load average at start "
           f"{load_start[0]:.2f} {load_start[1]:.2f} {load_start[2]:.2f}, at end "
           f"{load_end[0]:.2f} {load_end[1]:.2f} {load_end[2]:.2f} on {os.cpu_count()} CPUs\n")
-    print("| method | size | second job | lib s | worker s (/lib) | write s (/lib) | http s (/lib) | job recon s "
-          "| job write s (/recon) | cli s | load |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| method | size | second job | lib s | worker s (/lib) | write s (/lib) | http s (/lib) | fetch s "
+          "| job load s | job recon s | job write s (/recon) | cli s | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for (m, n, second), r in rows.items():
         lib = r["lib_s"]
         print(f"| {m} | {args.n_t}×{n}² | {'yes' if second else 'no'} | {f(lib)} | {f(r['worker_s'])} ({f(r['worker_s'] / lib)}) "
               f"| {f(r['write_s'])} ({f(r['write_s'] / lib)}) | {f(r['http_s'])} ({f(r['http_over_lib'])}) "
+              f"| {f(r['fetch_s'])} | {f(r['job_load_s'])} "
               f"| {f(r['job_recon_s'])} | {f(r['job_write_s'])} ({f(r['job_write_s'] / max(r['job_recon_s'], 1e-9))}) "
               f"| {f(r.get('cli_s'))} | {f(r['load'])} |")
     m0, n0 = args.methods[0], args.sizes[0]

@@ -4,7 +4,7 @@
 ``scipy._lib._array_api`` and ``scipy.special``), more than a small reconstruction takes
 in all; numpy.fft (the same pocketfft, single-threaded, single precision kept since
 numpy 2.0) is loaded with numpy. So a transform of at most :data:`SMALL_ELEMENTS`
-elements runs in numpy.fft, a larger one in scipy.fft with every core (``workers=-1``).
+elements runs in numpy.fft, a larger one in scipy.fft on every core this process may use (:func:`workers`).
 The choice depends on the array's size alone, so that the same data give the same
 result in every process (the library, the CLI and the job worker alike).
 
@@ -12,10 +12,14 @@ result in every process (the library, the CLI and the job worker alike).
 """
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["SMALL_ELEMENTS", "is_small", "fft", "ifft", "irfft", "rfft2", "dct1"]
+__all__ = ["SMALL_ELEMENTS", "is_small", "workers", "fft", "fft_in_place", "ifft", "irfft", "rfft2", "rfft2_planes",
+           "dct1"]
 
 #: elements (of the transform's input) at or below which a transform is "small": runs in
 #: numpy, and the temporal step in numpy instead of numba (`fpscan.physics.nufft`).
@@ -41,6 +45,31 @@ def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...], lengths: dict[
                          f"leading rows, got {out.shape} {out.dtype}")
     step = max(1, SLAB_BYTES // max(1, x[:1].nbytes))
     return range(0, x.shape[0], step)
+
+
+def workers() -> int:
+    """The threads a large transform runs on: the cores this process may run on.
+
+    ``scipy.fft``'s ``workers=-1`` means every core of the machine (``os.cpu_count``), also in a
+    process restricted to fewer (``taskset``, a container's CPU set), whose threads then share
+    the cores it has; this is the count of those it has (``os.sched_getaffinity``, where the
+    system has it).
+
+    Returns
+    -------
+    int
+        >= 1.
+
+    Examples
+    --------
+    >>> from fpscan.physics.fft_engine import workers
+    >>> workers() >= 1
+    True
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this system: every core
+        return max(1, os.cpu_count() or 1)
 
 
 def is_small(n_elements: int) -> bool:
@@ -91,7 +120,7 @@ def fft(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
         return np.fft.fft(x, axis=axis)
     import scipy.fft
 
-    return scipy.fft.fft(x, axis=axis, overwrite_x=overwrite_x, workers=-1)
+    return scipy.fft.fft(x, axis=axis, overwrite_x=overwrite_x, workers=workers())
 
 
 def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndarray:
@@ -123,7 +152,7 @@ def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndar
         return np.fft.ifft(x, n=n, axis=axis)
     import scipy.fft
 
-    return scipy.fft.ifft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+    return scipy.fft.ifft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=workers())
 
 
 def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.ndarray | None = None,
@@ -182,11 +211,18 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
     import scipy.fft
 
     if out is None:
-        res = scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+        res = scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=workers())
         return res if keep == n else np.ascontiguousarray(res[cut])
+    parallel = x.ndim == 3 and axis % 3 == 2
+    if parallel:
+        from fpscan.physics import array_kernels  # numba: on use
     for a in slabs:
-        out[a : a + slabs.step] = scipy.fft.irfft(x[a : a + slabs.step], n=n, axis=axis, overwrite_x=overwrite_x,
-                                                   workers=-1)[cut]
+        res = scipy.fft.irfft(x[a : a + slabs.step], n=n, axis=axis, overwrite_x=overwrite_x, workers=workers())
+        if parallel:  # the kept samples copied on every core
+            array_kernels.crop_rows(res, out[a : a + slabs.step], 0, 0)
+        else:
+            out[a : a + slabs.step] = res[cut]
+        del res
     return out
 
 
@@ -225,8 +261,8 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     >>> rfft2(np.ones((2, 3), dtype=np.float32), s=(2, 4)).shape
     (2, 3)
     """
+    ax = tuple(a % x.ndim for a in axes)
     if out is not None:
-        ax = tuple(a % x.ndim for a in axes)
         n_a, n_b = (x.shape[ax[0]], x.shape[ax[1]]) if s is None else (int(s[0]), int(s[1]))
         slabs = _slabs(x, out, axes, {ax[0]: n_a, ax[1]: n_b // 2 + 1},
                        np.complex64 if x.dtype == np.float32 else np.complex128)
@@ -238,10 +274,129 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     import scipy.fft
 
     if out is None:
-        return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
+        return scipy.fft.rfft2(x, s=s, axes=axes, workers=workers())
+    if x.ndim == 3 and ax == (1, 2) and n_a >= x.shape[1] and n_b >= x.shape[2] and x.flags.c_contiguous:
+        return _rfft2_planes(x, n_b, out, slabs)
     for a in slabs:
-        out[a : a + slabs.step] = scipy.fft.rfft2(x[a : a + slabs.step], s=s, axes=axes, workers=-1)
+        out[a : a + slabs.step] = scipy.fft.rfft2(x[a : a + slabs.step], s=s, axes=axes, workers=workers())
     return out
+
+
+def _rfft2_planes(x: np.ndarray, n_b: int, out: np.ndarray, slabs: range) -> np.ndarray:
+    """`rfft2` of the planes of a C-contiguous real ``x`` ``(m, r, n)`` over axes (1, 2),
+    zero-padded to ``out``'s planes, through `rfft2_planes`: each slab's rows padded to n_b
+    on every core into a work array (`fpscan.physics.workspace`; none to pad: the slab itself)."""
+    from fpscan.physics import array_kernels, workspace
+
+    step = slabs.step
+    if n_b == x.shape[2]:
+        return rfft2_planes(lambda a, b: x[a:b], x.shape[0], x.shape[1], n_b, out, step)
+    buf = workspace.take((min(step, x.shape[0]), x.shape[1], n_b), x.dtype)
+
+    def padded(a: int, b: int) -> np.ndarray:
+        array_kernels.pad_rows(x[a:b], buf[: b - a], 0)
+        return buf[: b - a]
+
+    return rfft2_planes(padded, x.shape[0], x.shape[1], n_b, out, step)
+
+
+def rfft2_planes(planes: Callable[[int, int], np.ndarray], m: int, rows: int, n: int, out: np.ndarray,
+                 step: int | None = None, row_offset: int = 0) -> np.ndarray:
+    """The real 2-D FFT of ``m`` planes ``(rows, n)`` that a caller gives slab by slab, each
+    zero-padded to ``out``'s planes, into ``out``, with every copy on every core
+    (`fpscan.physics.array_kernels`): ``planes(a, b)`` returns planes a .. b (``(b - a, rows, n)``,
+    real, C-contiguous rows); their real FFT along x; its rows placed in ``out``'s planes from row
+    ``row_offset`` on (the other rows zero, as their transforms are); then the FFT along y in
+    ``out``'s own memory (`fft_in_place`). The transforms of ``scipy.fft.rfft2`` of the padded
+    planes, row by row, with every core (:func:`workers`), and no whole-volume temporary.
+
+    Parameters
+    ----------
+    planes : callable
+        ``planes(a, b) -> ndarray``: the real planes a .. b, float32 or float64 (the dtype of
+        ``out``'s precision); called once per slab, in order.
+    m : int
+        Planes in all.
+    rows, n : int
+        A plane's shape (n the transform length along x).
+    out : ndarray ``(m, n_a, n // 2 + 1)``, n_a >= rows + row_offset
+        C-contiguous complex64 (float32 planes) or complex128; written in place.
+    step : int, optional
+        Planes per slab (default: `SLAB_BYTES` of planes).
+    row_offset : int, optional
+        The row of ``out``'s planes that takes a plane's first row (default 0).
+
+    Returns
+    -------
+    ndarray
+        ``out``.
+
+    Raises
+    ------
+    ValueError
+        ``out`` not of that shape or not C-contiguous complex.
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.fft
+    >>> from fpscan.physics.fft_engine import rfft2_planes
+    >>> x = np.arange(2 * 3 * 8, dtype=np.float64).reshape(2, 3, 8)
+    >>> out = np.empty((2, 4, 5), np.complex128)  # y padded 3 -> 4
+    >>> _ = rfft2_planes(lambda a, b: x[a:b], 2, 3, 8, out)
+    >>> bool(np.allclose(out, scipy.fft.rfft2(x, s=(4, 8))))
+    True
+    """
+    import scipy.fft
+
+    from fpscan.physics import array_kernels
+
+    if (out.ndim != 3 or out.shape[0] != m or out.shape[1] < rows + row_offset or out.shape[2] != n // 2 + 1
+            or out.dtype.kind != "c" or not out.flags.c_contiguous):
+        raise ValueError(f"out must be a C-contiguous complex ({m}, >= {rows + row_offset}, {n // 2 + 1}) array, "
+                         f"got {out.shape} {out.dtype}")
+    rtype = np.float32 if out.dtype == np.complex64 else np.float64
+    step = max(1, SLAB_BYTES // max(1, rows * n * np.dtype(rtype).itemsize)) if step is None else int(step)
+    for a in range(0, m, step):
+        b = min(a + step, m)
+        spectrum = scipy.fft.rfft(planes(a, b), axis=2, workers=workers())
+        dst = out[a:b]
+        array_kernels.embed_rows(spectrum, dst, row_offset)
+        del spectrum
+        if dst.shape[1] > 1:
+            fft_in_place(dst, axis=1)
+    return out
+
+
+def fft_in_place(x: np.ndarray, axis: int, inverse: bool = False) -> None:
+    """X <- its complex FFT along ``axis``, unnormalised (``inverse``: its inverse FFT, with the
+    1/n factor), in ``x``'s own memory.
+
+    pocketfft (``scipy.fft``, whatever the size: the transform of a part of a larger array is
+    the same as the whole's) transforms a C-contiguous complex array in its own memory when
+    allowed to overwrite it; any other array is transformed and copied back.
+
+    Parameters
+    ----------
+    x : ndarray, complex64 or complex128, any shape; written in place.
+    axis : int
+        The transformed axis.
+    inverse : bool, optional
+        The inverse transform (``scipy.fft.ifft``) instead.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.physics.fft_engine import fft_in_place
+    >>> x = np.array([[1.0, 0.0, 0.0, 0.0]], dtype=np.complex128)
+    >>> fft_in_place(x, axis=1)
+    >>> x
+    array([[1.+0.j, 1.+0.j, 1.+0.j, 1.+0.j]])
+    """
+    import scipy.fft
+
+    res = (scipy.fft.ifft if inverse else scipy.fft.fft)(x, axis=axis, workers=workers(), overwrite_x=True)
+    if res.ctypes.data != x.ctypes.data or res.strides != x.strides:
+        x[...] = res
 
 
 def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
@@ -290,6 +445,6 @@ def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray
 
     if np.iscomplexobj(x) and x.flags.c_contiguous:
         re = x.view(x.real.dtype).reshape(*x.shape, 2)
-        out = scipy.fft.dct(re, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)
+        out = scipy.fft.dct(re, type=1, axis=axis, overwrite_x=overwrite_x, workers=workers())
         return np.ascontiguousarray(out).view(x.dtype).reshape(x.shape)
-    return scipy.fft.dct(x, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)
+    return scipy.fft.dct(x, type=1, axis=axis, overwrite_x=overwrite_x, workers=workers())

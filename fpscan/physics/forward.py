@@ -28,7 +28,7 @@ import numpy.typing as npt
 import scipy.fft
 
 from fpscan.constants import C_DEFAULT
-from fpscan.physics import nufft
+from fpscan.physics import fft_engine, nufft
 from fpscan.physics.axes import centred_index
 from fpscan.physics.grid_sizes import pad_sizes
 from fpscan.physics.lateral import irfft_lateral
@@ -62,15 +62,15 @@ def _kspace_data(p0: np.ndarray, dx: float, dz: float, dt: float, n_t: int, c: f
     """p0 (n_z, n_y, n_x) -> (n_t, n_y, n_x or n_x//2+1) lateral spectrum of the data."""
     n_z, n_y, n_x = p0.shape
     if full:
-        F = scipy.fft.fft2(p0, axes=(1, 2), workers=-1)
+        F = scipy.fft.fft2(p0, axes=(1, 2), workers=fft_engine.workers())
         kx = 2 * np.pi * scipy.fft.fftfreq(n_x, dx)
     else:
-        F = scipy.fft.rfft2(p0, axes=(1, 2), workers=-1)
+        F = scipy.fft.rfft2(p0, axes=(1, 2), workers=fft_engine.workers())
         kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dx)
     n_cols = F.shape[1] * F.shape[2]
     # DCT-I in depth: F_l = dz * DCT-I(p0)_l
-    B = scipy.fft.dct(F.reshape(n_z, n_cols).T, type=1, axis=-1, workers=-1) * dz
+    B = scipy.fft.dct(F.reshape(n_z, n_cols).T, type=1, axis=-1, workers=fft_engine.workers()) * dz
     dk = np.pi / ((n_z - 1) * dz)
     kz = dk * np.arange(n_z)
     tau = np.ones(n_z)

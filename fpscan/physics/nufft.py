@@ -43,12 +43,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpscan.physics import fft_engine
+from fpscan.physics import fft_engine, workspace
 from fpscan.physics.grid_sizes import KINDS, grid_length, kernel_params
+from fpscan.physics.step_times import step
 
 __all__ = [
     "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
-    "transpose", "gather_columns", "scatter_columns", "to_fine_grid", "from_fine_grid", "group_columns",
+    "transpose", "gather_columns", "scatter_columns", "to_fine_grid", "from_fine_grid", "scatter_fine_grid",
+    "group_columns",
     "evaluate", "spread", "group_tap_arrays",
 ]
 
@@ -344,7 +346,8 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
 
     Returns
     -------
-    ndarray ``(n_cols, grid.L)`` complex.
+    ndarray ``(n_cols, grid.L)`` complex; a large one on memory of the work-array pool
+    (`fpscan.physics.workspace`: reused by a later call once this array is dropped).
 
     Examples
     --------
@@ -359,17 +362,20 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
     """
     ctype = np.complex64 if A.dtype in (np.float32, np.complex64) else np.complex128
     cols = np.arange(A.shape[1], dtype=np.int64) if columns is None else np.asarray(columns, dtype=np.int64)
-    U = np.zeros((len(cols), grid.L), dtype=ctype)
-    scale = (1.0 / grid.phihat).astype(U.real.dtype)
-    if t0_is_zero:
-        scale = scale.copy()
-        scale[0] *= 0.5
-    # nufft: centred mode m = n - shift sits at fine index m mod L; FFT-grid kinds: shift 0
-    if fft_engine.is_small(U.size):
-        U[:, (np.arange(A.shape[0]) - grid.shift) % grid.L] = (A[:, cols] * scale[:, None]).T
-    else:
-        _compiled().place_columns(np.ascontiguousarray(A, dtype=ctype), cols, scale, grid.shift, grid.L, U)
-    return fft_engine.fft(U, axis=-1, overwrite_x=True)
+    with step("temporal placement"):
+        scale = (1.0 / grid.phihat).astype(np.float32 if ctype == np.complex64 else np.float64)
+        if t0_is_zero:
+            scale = scale.copy()
+            scale[0] *= 0.5
+        # nufft: centred mode m = n - shift sits at fine index m mod L; FFT-grid kinds: shift 0
+        if fft_engine.is_small(len(cols) * grid.L):
+            U = np.zeros((len(cols), grid.L), dtype=ctype)
+            U[:, (np.arange(A.shape[0]) - grid.shift) % grid.L] = (A[:, cols] * scale[:, None]).T
+        else:  # on memory of an earlier call (`fpscan.physics.workspace`), every entry written
+            U = workspace.take((len(cols), grid.L), ctype)
+            _compiled().place_columns(np.ascontiguousarray(A, dtype=ctype), cols, scale, grid.shift, grid.L, U)
+    with step("temporal FFT"):
+        return fft_engine.fft(U, axis=-1, overwrite_x=True)
 
 
 def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
@@ -406,7 +412,7 @@ def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrit
     # adjoint of the forward FFT (no 1/L)
     import scipy.fft  # the forward model and the model-based operator only: never small
 
-    V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
+    V = scipy.fft.ifft(R, axis=-1, workers=fft_engine.workers(), norm="forward", overwrite_x=overwrite)
     scale = (1.0 / grid.phihat).astype(V.real.dtype)
     if t0_is_zero:
         scale = scale.copy()
@@ -420,6 +426,41 @@ def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrit
         out[:] = V[:, :n_t]
     out *= scale
     return out
+
+
+def scatter_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, cols: np.ndarray, out: np.ndarray) -> None:
+    """`from_fine_grid` (overwriting ``R``) written into chosen columns of a time-first array, in
+    one pass on every core: ``out[:, cols] = from_fine_grid(R).T``, without the (n_cols, n_t)
+    array between them.
+
+    Parameters
+    ----------
+    R : ndarray ``(n_cols, grid.L)`` complex, C-contiguous (from :func:`spread`); overwritten.
+    grid : TemporalGrid (kind ``"nufft"``).
+    t0_is_zero : bool, whether sample 0 is at t = 0 (its weight is halved).
+    cols : ndarray ``(n_cols,)`` int, distinct columns of ``out``.
+    out : ndarray ``(grid.n_t, n_all)`` complex of R's precision, written at ``cols``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.physics.nufft import from_fine_grid, make_grid, scatter_fine_grid
+    >>> grid = make_grid(32, "nufft", 1e-10)
+    >>> R = np.random.default_rng(0).standard_normal((3, grid.L)).astype(complex)
+    >>> out = np.zeros((32, 5), complex)
+    >>> scatter_fine_grid(R.copy(), grid, False, np.array([4, 0, 2]), out)
+    >>> bool(np.array_equal(out[:, [4, 0, 2]], from_fine_grid(R, grid, False).T))
+    True
+    """
+    import scipy.fft
+
+    V = scipy.fft.ifft(R, axis=-1, workers=fft_engine.workers(), norm="forward", overwrite_x=True)
+    scale = (1.0 / grid.phihat).astype(V.real.dtype)
+    if t0_is_zero:
+        scale = scale.copy()
+        scale[0] *= 0.5
+    shift = grid.shift if grid.kind == "nufft" else 0
+    _compiled().unplace_columns(V, np.asarray(cols, dtype=np.int64), scale, shift, out)
 
 
 def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -672,6 +713,7 @@ def spread(
     groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     progress: Callable[[float], object] | None = None,
     n_chunks: int = 1,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
     (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
@@ -687,10 +729,18 @@ def spread(
         chunks of column groups (default one chunk; chunks of at least ~4M
         coefficients). Each column is spread by one chunk, so the result does not depend
         on the chunking.
+    out : ndarray ``(n_cols, grid.L)``, optional
+        C-contiguous, of the result's dtype, to write the result into (every entry: its
+        contents need not be zero); default a new array.
 
     Returns
     -------
-    ndarray ``(n_cols, grid.L)`` complex.
+    ndarray ``(n_cols, grid.L)`` complex (``out`` when given).
+
+    Raises
+    ------
+    ValueError
+        An ``out`` of the wrong shape, dtype or layout.
 
     Examples
     --------
@@ -711,7 +761,13 @@ def spread(
     """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
-    R = np.zeros((B.shape[0], grid.L), dtype=ctype)
+    shape = (B.shape[0], grid.L)
+    if out is None:
+        R = np.zeros(shape, dtype=ctype)
+    elif out.shape != shape or out.dtype != ctype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {shape} array of {np.dtype(ctype)}, got {out.shape} {out.dtype}")
+    else:
+        R = out
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
     for a, b in _group_chunks(len(gvals), n_chunks, B.shape[0] * len(kz), progress):

@@ -28,6 +28,8 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from fpscan.physics import fft_engine
+
 __all__ = ["resample", "resample_adjoint", "resampled_length"]
 
 
@@ -130,7 +132,7 @@ def resample(x: npt.ArrayLike, n_out: int, axis: int = -1) -> np.ndarray:
     if n < 2:
         raise ValueError(f"resampling needs at least 2 samples along axis {axis}, got {n}")
     dtype = np.float32 if x.dtype == np.float32 else np.float64
-    y = scipy.fft.dct(np.asarray(x, dtype=dtype), type=1, axis=axis, workers=-1)
+    y = scipy.fft.dct(np.asarray(x, dtype=dtype), type=1, axis=axis, workers=fft_engine.workers())
     keep = min(int(n_out) - 1, n)  # terms k <= M - 2 (and k < n)
     shape = list(x.shape)
     shape[axis] = int(n_out)
@@ -138,7 +140,7 @@ def resample(x: npt.ArrayLike, n_out: int, axis: int = -1) -> np.ndarray:
     idx = [slice(None)] * x.ndim
     idx[axis] = slice(0, keep)
     z[tuple(idx)] = y[tuple(idx)]
-    out = scipy.fft.dct(z, type=1, axis=axis, overwrite_x=True, workers=-1)
+    out = scipy.fft.dct(z, type=1, axis=axis, overwrite_x=True, workers=fft_engine.workers())
     out *= 1.0 / (2 * (n - 1))
     return out
 
@@ -186,7 +188,7 @@ def resample_adjoint(x: npt.ArrayLike, n_in: int, axis: int = -1) -> np.ndarray:
     # resample = (1 / (2 (n - 1))) D_M Z D_n, D the (unnormalised) DCT-I and Z the cut: its
     # transpose is (1 / (2 (n - 1))) D_nᵀ Zᵀ D_Mᵀ, with D_mᵀ = W D_m W⁻¹, W = diag(½, 1, ..., 1, ½)
     w = _end_weights(m, axis, x.ndim, dtype)
-    y = scipy.fft.dct(np.asarray(x, dtype=dtype) / w, type=1, axis=axis, workers=-1) * w
+    y = scipy.fft.dct(np.asarray(x, dtype=dtype) / w, type=1, axis=axis, workers=fft_engine.workers()) * w
     keep = min(m - 1, n)
     shape = list(x.shape)
     shape[axis] = n
@@ -196,7 +198,7 @@ def resample_adjoint(x: npt.ArrayLike, n_in: int, axis: int = -1) -> np.ndarray:
     wn = _end_weights(n, axis, x.ndim, dtype)
     z[tuple(idx)] = y[tuple(idx)]
     z = z / wn
-    out = scipy.fft.dct(z, type=1, axis=axis, overwrite_x=True, workers=-1) * wn
+    out = scipy.fft.dct(z, type=1, axis=axis, overwrite_x=True, workers=fft_engine.workers()) * wn
     out *= 1.0 / (2 * (n - 1))
     return out
 

@@ -94,6 +94,20 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
             f.attrs["pitch"] = float(ds.lattice["pitch"])
 
 
+def _read(d: h5py.Dataset) -> np.ndarray:
+    """The whole of ``d``, read into memory of the work-array pool (`fpscan.physics.workspace`:
+    a job worker's next input of the same size lands in pages already mapped, where a fresh
+    array's pages were faulted in one by one as HDF5 copied into them); a small or non-native
+    one as h5py reads it."""
+    from fpscan.physics import workspace
+
+    if d.dtype.kind not in "fiu" or not d.dtype.isnative or d.shape is None or d.size * d.dtype.itemsize < workspace.MIN_BYTES:
+        return d[()]
+    out = workspace.take(d.shape, d.dtype)
+    d.read_direct(out)
+    return out
+
+
 def load(source: Source, **_: Any) -> GridDataset | PointDataset:
     """Read a canonical dataset file (:func:`write`).
 
@@ -135,7 +149,7 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
         ls = f.attrs.get("lateral_shift_m")
         shift = tuple(float(v) for v in np.ravel(ls)) if ls is not None and np.size(ls) else None
         if layout == "grid":
-            data = f["data"][()]
+            data = _read(f["data"])
             dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
             return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, sound_speed=c, dy=dy, t0=t0,
                                source=origin, wavelengths=wavelengths, meta=meta, lateral_shift=shift)

@@ -382,8 +382,8 @@ class ReconQueue:
             return
         usage_for(self.settings.data_dir).add_path(out_dir)  # /api/health's counters
 
-        def succeed() -> None:
-            self.store.update_params(jid, {"result": summary})
+        def succeed() -> None:  # one flush of the job database: the state's commit flushes the result's with it
+            self.store.update_params(jid, {"result": summary}, durable=False)
             self.store.set_state(jid, "succeeded", result_path=str(out_dir), only_from=("running",),
                                  progress={"fraction": 1.0, "stage": "done",
                                            "points_done": summary.get("points_used"),

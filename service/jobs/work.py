@@ -42,7 +42,8 @@ from fpscan.service.recon.limits import DEFAULT_DTYPE
 __all__ = [
     "INPUT_FORMATS", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "worker_pid", "warm_up",
-    "warm_heap", "HEAP_MMAP_THRESHOLD", "HEAP_WARM_BYTES", "JobGate", "JOB_GATE", "WARM_QUIET_S",
+    "warm_heap", "HEAP_MMAP_THRESHOLD", "HEAP_WARM_BYTES", "JobGate", "JOB_GATE", "WARM_QUIET_S", "POOL_QUIET_S",
+    "release_when_quiet",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
@@ -328,13 +329,16 @@ class JobGate:
     Used by the background warm-up (:func:`warm_up`'s ``rest_in_background``).
     ``with gate.busy():`` marks a job (nestable, thread-safe); ``gate.wait_idle()`` blocks
     while one runs and sets ``gate.waited`` first (so a caller can see that it yielded);
-    ``gate.wait_quiet(s)`` blocks until no job has run for ``s`` seconds. Takes no
-    parameters.
+    ``gate.wait_quiet(s)`` blocks until no job has run for ``s`` seconds;
+    ``gate.wait_ended(n)`` blocks until more than ``n`` jobs have ended (``gate.ended``).
+    Takes no parameters.
 
     Attributes
     ----------
     waited : threading.Event
         Set once ``wait_idle`` had to wait for a job.
+    ended : int
+        Jobs ended so far (the outermost ``busy`` blocks).
     """
 
     def __init__(self) -> None:
@@ -343,6 +347,8 @@ class JobGate:
         self._idle = threading.Event()
         self._idle.set()
         self._last_end = -math.inf  # time.monotonic() when the last job ended
+        self._changed = threading.Condition(self._lock)
+        self.ended = 0
         self.waited = threading.Event()
 
     @contextlib.contextmanager
@@ -357,7 +363,9 @@ class JobGate:
                 self._jobs -= 1
                 if self._jobs == 0:
                     self._last_end = time.monotonic()
+                    self.ended += 1
                     self._idle.set()
+                    self._changed.notify_all()
 
     def wait_idle(self) -> None:
         if not self._idle.is_set():
@@ -383,6 +391,17 @@ class JobGate:
                     return
             time.sleep(max(left, 0.0))
 
+    def wait_ended(self, seen: int) -> None:
+        """Block until more than ``seen`` jobs have ended.
+
+        Parameters
+        ----------
+        seen : int
+            A value of ``ended``.
+        """
+        with self._changed:
+            self._changed.wait_for(lambda: self.ended > seen)
+
 
 #: this worker process's jobs: :func:`run_reconstruction` holds it busy, the background
 #: warm-up waits for it to be idle (and quiet: :data:`WARM_QUIET_S`) between its steps
@@ -390,12 +409,42 @@ JOB_GATE = JobGate()
 #: the background warm-up takes a step only after this long without a job (s): a job that
 #: comes right after start-up or right after another runs alone
 WARM_QUIET_S = 2.0
+#: a worker keeps its jobs' work arrays (`fpscan.physics.workspace`: the next job of the same size
+#: runs in pages already mapped) until it has been this long without a job (s), then gives them
+#: back to the system (:func:`release_when_quiet`)
+POOL_QUIET_S = 30.0
+
+
+def release_when_quiet(gate: JobGate, quiet: float = POOL_QUIET_S) -> None:
+    """Forever: once ``gate`` has seen no job for ``quiet`` s after a job ended, release the
+    work-array pool's free buffers (`fpscan.physics.workspace.release`); then wait for the next
+    job to end. A worker runs it in a daemon thread (:func:`warm_up`), so that jobs back to back
+    reuse their arrays' pages and an idle worker holds no more memory than its interpreter.
+
+    Parameters
+    ----------
+    gate : JobGate
+        The worker's (:data:`JOB_GATE`).
+    quiet : float, optional
+        s without a job (default :data:`POOL_QUIET_S`).
+    """
+    from fpscan.physics import workspace
+
+    seen = 0
+    while True:
+        gate.wait_ended(seen)
+        seen = gate.ended
+        gate.wait_quiet(quiet)
+        workspace.release()
 
 
 def run_reconstruction(spec: dict) -> dict:
     """Executor entry point: run one reconstruction job and write its result folder.
 
-    Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits).
+    Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits). The work-array
+    pool's free buffers (`fpscan.physics.workspace`) are kept for it where they and the job's
+    ``memory_estimate`` fit its ``memory_limit`` together (the address space is bounded to that
+    limit, :func:`memory_bounded`), else released first.
 
     Parameters
     ----------
@@ -424,6 +473,12 @@ def run_reconstruction(spec: dict) -> dict:
         When the cancel file appears.
     """
     with JOB_GATE.busy():
+        limit = spec.get("memory_limit")
+        if limit:  # the last job's free work arrays count in the address space this job is bounded to
+            from fpscan.physics import workspace
+
+            if workspace.held() + int(spec.get("memory_estimate") or 0) > int(limit):
+                workspace.release()
         return _run_reconstruction(spec)
 
 
@@ -505,8 +560,9 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     result writer; with ``full`` also compile (or load from numba's cache) every numba
     kernel a job uses, in float32 and float64 (:func:`fpscan.service.recon.warmup.warm_up`, the
     one warm-up ``fpscan warmup`` runs too), run one tiny job's dispatch and write its result
-    folder (h5py and the fonts of the MIP pictures) into a temporary folder, and last give the
-    heap written pages for the first job's arrays (:func:`warm_heap`).
+    folder (h5py and the fonts of the MIP pictures) into a temporary folder, start the thread
+    that gives the jobs' work arrays back once the worker is idle (:func:`release_when_quiet`),
+    and last give the heap written pages for the first job's arrays (:func:`warm_heap`).
 
     The warm-ups of the methods that are quick to warm (``Method.warm_in_background`` false:
     the planar inversions and the k-Wave modes, ~0.4 s from numba's cache; a first k-Wave job
@@ -555,9 +611,8 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
         rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, sound_speed=C_DEFAULT, dy=1e-4), default_method("grid"))
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
+        threading.Thread(target=release_when_quiet, args=(JOB_GATE,), name="work-arrays-release", daemon=True).start()
         if rest_in_background:
-            import threading
-
             threading.Thread(target=_warm_rest, name="warm-up-rest", daemon=True).start()
         else:
             for methods, dtypes in _later_steps():

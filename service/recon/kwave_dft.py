@@ -154,7 +154,7 @@ def _mirrored_fft(a: np.ndarray) -> np.ndarray:
     buf = np.empty((2 * n - 1,) + a.shape[1:], dtype=a.dtype)
     buf[:n] = a
     buf[n:] = a[n - 1 : 0 : -1]
-    return scipy.fft.fft(buf, axis=0, overwrite_x=True, workers=-1)[:n]
+    return scipy.fft.fft(buf, axis=0, overwrite_x=True, workers=fft_engine.workers())[:n]
 
 
 _BLAS_LOCK = threading.Lock()  # one product section at a time per process (see below)
@@ -346,11 +346,11 @@ def lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     """
     n = p.shape[-1]
     if fft_engine.is_small(p.size):
-        return scipy.fft.rfftn(p, axes=lat_axes, workers=-1)
+        return scipy.fft.rfftn(p, axes=lat_axes, workers=fft_engine.workers())
     if not product_length(n):  # rfftn's second pass would take an array of its own: in place here
-        out = scipy.fft.rfft(p, axis=-1, workers=-1)
+        out = scipy.fft.rfft(p, axis=-1, workers=fft_engine.workers())
         if len(lat_axes) == 2:
-            out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=-1)
+            out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=fft_engine.workers())
         return out
     W, _ = _lateral_matrices(n, p.dtype)
     rows = np.ascontiguousarray(p).reshape(-1, n)
@@ -359,7 +359,7 @@ def lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     with _products_in_threads() as (_, matmul_rows):
         matmul_rows(W, rows, out.reshape(rows.shape[0], -1).view(p.dtype))
     if len(lat_axes) == 2:
-        out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=-1)
+        out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=fft_engine.workers())
     return out
 
 
@@ -399,7 +399,7 @@ def lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[i
             over = A.reshape(-1).view(rdtype)[: A.size // A.shape[-1] * n].reshape(A.shape[:-1] + (n,))
         return irfft_lateral(A, lat_shape, lat_axes, out=over)
     if len(lat_axes) == 2:
-        A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=-1)
+        A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=fft_engine.workers())
     _, V = _lateral_matrices(n, np.dtype(rdtype))
     rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
     out = rows.reshape(-1)[: rows.shape[0] * n].reshape(rows.shape[0], n)  # over the spectrum

@@ -315,8 +315,10 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     """Estimated peak bytes of the model-based reconstruction (`fpscan.service.recon.tv`).
 
     The larger of two phases (`fpscan.service.recon.tv.fista.run_fista`). While the operator works: the
-    solver's image-sized vector in ``dtype`` (y or the new iterate; the adjoint writes its
-    output over its k-space, where the system can release the rest), the last preconditioned
+    solver's image-sized vector in ``dtype`` (y or the new iterate) and the adjoint's output, an
+    image of its own (so that the k-space is free for the next application however long the
+    solver keeps it: the operator's arrays are kept between applications,
+    `fpscan.physics.workspace`), the last preconditioned
     gradient, the last move and, in the solver's exact phase, the last proximal step's s in int16
     (`fpscan.service.recon.tv.stores.store_gradient`, ``store_move``; `fpscan.service.recon.tv.fista`)
     and the TV proximal map's dual (d vectors) at half those bytes
@@ -330,9 +332,9 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     the point NUFFTs. While the proximal map works: 2 + d + d/2 vectors (the gradient step,
     the preconditioned gradient, the dual at full precision beside the stored one,
     `fpscan.service.recon.tv.prox.tv_prox_stored`), the move and, in the exact phase, the gradient
-    kept for the next gain test in int16. The
+    kept for the next gain test in int16, beside the operator's arrays (kept for its next application). The
     preconditioner P is computed where it is applied, on the image padded to fast lengths
-    after the operator's arrays are freed. Both phases add the data-sized vectors (the data
+    after the operator's k-space is free again. Both phases add the data-sized vectors (the data
     in float64, A x, A y and a residual in ``dtype``), and the estimate 10 % (allocator, FFT
     buffers and plans: the measured peak was 0.97-1.08 of the count on the paper's scan, whole
     and cut, and the two tv cases of tests/service/test_memory_admission.py, so that with the
@@ -379,10 +381,11 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
                         + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
-    # y (or the new iterate), the stored dual, the last gradient, the last move and (in the exact
-    # phase) the last proximal step's s as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
-    with_operator = n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator
+    # y (or the new iterate), the adjoint's image, the stored dual, the last gradient, the last move and
+    # (in the exact phase) the last proximal step's s as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
+    with_operator = 2 * n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator
     # the gradient step, G(A y − g), the move and (in the exact phase) the gradient kept for the next gain
-    # test as int16, the dual at full precision beside the stored one
-    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2
+    # test as int16, the dual at full precision beside the stored one, beside the operator's arrays,
+    # which the work-array pool keeps for the next application
+    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2 + operator
     return int(1.10 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))

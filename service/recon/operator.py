@@ -77,17 +77,21 @@ and without the NUFFT's oversampled grid (the tv solver at 256 × 128², 533 sen
 (`fpscan.physics.nufft.gather_columns` / `scatter_columns`: no copies of the chosen
 columns; the same run 35 → 28 s), and a step's input and output k-space (image and data)
 share one array, since a chunk reads its columns of the one whole before it writes them in
-the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume); the
-adjoint then writes its image over that array's first rows and releases the rest of its
-pages (`_release_after`), so its output costs no memory beside the k-space. `benchmarks/bench_tv_operator.py` times a pair against one
-NER of the same image.
+the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume).
+Every step runs on every core: the transforms on pocketfft's threads
+(`fpscan.physics.fft_engine.workers`), and the copies, zero fills and scatters between them in
+compiled parallel loops (`fpscan.physics.array_kernels`, `fpscan.physics.nufft`), each writing
+every entry of its output, so that the k-space, the chunks' arrays and the images come from the
+work-array pool (`fpscan.physics.workspace`) as they are: from the second application on, the
+forward and the adjoint fault in no fresh pages. `benchmarks/bench_tv_operator.py` times a pair
+against one NER of the same image; `benchmarks/bench_cpu_scaling.py` times its steps at 1 and 2
+threads.
 
 The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 (`reconstruct_grid` / `reconstruct_points`), which weights k-space by k_z/ω instead.
 """
 from __future__ import annotations
 
-import mmap
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -97,10 +101,11 @@ import pylops
 import scipy.fft
 
 from fpscan.constants import C_DEFAULT
-from fpscan.physics import fft_engine, nufft
+from fpscan.physics import array_kernels, fft_engine, nufft, workspace
 from fpscan.physics.axes import centred_axis, centred_index, node_indices
 from fpscan.physics.grid_sizes import pad_sizes
 from fpscan.physics.nufft_plans import lateral_plan
+from fpscan.physics.step_times import step
 from fpscan.service.recon import checks, memory
 
 __all__ = ["PlanarOperator"]
@@ -452,72 +457,72 @@ class PlanarOperator(pylops.LinearOperator):
         if self.checkpoint is not None:
             self.checkpoint()
 
-    def _kspace(self, m_in: int, m_out: int, releasable: bool = False
-                ) -> tuple[np.ndarray, np.ndarray, mmap.mmap | None]:
-        """The step's input spectrum (m_in, N_y (N_x//2+1)), zeros, and its output
-        (m_out, same columns) as two views of one array of max(m_in, m_out) rows: the temporal
-        and depth steps read a chunk's columns of the input whole before they write its
-        columns of the output, and each column belongs to one chunk, so one k-space array
-        serves both (at the paper's size 0.77 GB less at the peak). With ``releasable`` the
-        array lives in anonymous pages (`_anonymous_pages`), returned third so that part of
-        them can be released (`_release_after`); else (and where the system cannot) None."""
+    def _kspace(self, m_in: int, m_out: int) -> tuple[np.ndarray, np.ndarray]:
+        """The step's input spectrum (m_in, N_y (N_x//2+1)) and its output (m_out, same columns)
+        as two views of one array of max(m_in, m_out) rows, its contents undefined: the lateral
+        step writes every entry of the input, the temporal and depth steps read a chunk's
+        columns of the input whole before they write its columns of the output (each column
+        belongs to one chunk, the columns above a band limit are zeroed), so one k-space array
+        serves both (at the paper's size 0.77 GB less at the peak). From the work-array pool
+        (`fpscan.physics.workspace`): the forward's and the adjoint's are one warm buffer from
+        the second application on."""
         _, n_y2, _ = self.padded_shape
-        rows, cols = max(m_in, m_out), n_y2 * self._n_xr
-        pages = _anonymous_pages(rows * cols * self._ctype.itemsize) if releasable else None
-        if pages is None:
-            buf = np.zeros((rows, cols), dtype=self._ctype)
-        else:
-            buf = np.frombuffer(pages, dtype=self._ctype, count=rows * cols).reshape(rows, cols)
-        return buf[:m_in], buf[:m_out], pages
+        buf = workspace.take((max(m_in, m_out), n_y2 * self._n_xr), self._ctype)
+        return buf[:m_in], buf[:m_out]
 
     def _row_blocks(self, m: int) -> list[slice]:
         """Blocks of rows of an (m, N_y, N_x//2+1) spectrum of about `_BLOCK` elements each:
-        the lateral transforms run per block with a checkpoint between blocks."""
+        the inverse lateral transforms run per block with a checkpoint between blocks."""
         _, n_y2, _ = self.padded_shape
         step = max(1, _BLOCK // (n_y2 * self._n_xr))
         return [slice(a, min(a + step, m)) for a in range(0, m, step)]
 
     def _lateral_spectrum(self, vol: np.ndarray, out: np.ndarray) -> np.ndarray:
         """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
-        centred embedding in the working grid, written into ``out`` (zeros of that shape, a
-        view of `_kspace`) and returned; only the m given rows are transformed."""
+        centred embedding in the working grid, written into ``out`` (every entry, a view of
+        `_kspace`) and returned: the rows padded and centred, the x transforms, their rows
+        centred in y and the y transforms, slab by slab on every core
+        (`fpscan.physics.fft_engine.rfft2_planes`); a checkpoint after each slab."""
         m = vol.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        blocks = self._row_blocks(m)
-        # one zero-padded buffer for all blocks: each fills the same window (the padding stays
-        # zero), and its pages are touched once (a fresh one per block: 0.12 s at 1024 × 450²)
-        pad = np.zeros((blocks[0].stop - blocks[0].start, n_y, n_x2), dtype=self.dtype)
-        for rows in blocks:
-            buf = pad[: rows.stop - rows.start]
-            buf[:, :, ox : ox + n_x] = vol[rows]
-            out[rows, oy : oy + n_y] = scipy.fft.rfft(buf, axis=2, workers=-1)
-            if n_y2 > 1:
-                _fft_in_place(out[rows], axis=1)
-            self._tick()
+        src = np.ascontiguousarray(vol, dtype=self.dtype)
+        step = max(1, fft_engine.SLAB_BYTES // (n_y * n_x2 * self.dtype.itemsize))
+        buf = workspace.take((min(step, m), n_y, n_x2), self.dtype)
+
+        def planes(a: int, b: int) -> np.ndarray:
+            if a:
+                self._tick()
+            array_kernels.pad_rows(src[a:b], buf[: b - a], ox)
+            return buf[: b - a]
+
+        fft_engine.rfft2_planes(planes, m, n_y, n_x2, out, step=step, row_offset=oy)
+        self._tick()
         return out
 
     def _lateral_inverse(self, S: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(m, N_y, N_x//2+1) half spectrum -> the image's (m, n_y, n_x) lateral window of
         its inverse DFT (the transpose of `_lateral_spectrum` up to the DFT's 1/(N_y N_x)):
-        the x transforms run on the n_y rows kept only. S is consumed (the y transforms run
-        in its memory). Into ``out`` if given (it may be the
-        start of S's own memory: a block of rows is read whole before its rows of ``out``
-        are written, and a row of ``out``, n_y n_x reals, is shorter than a row of S,
-        N_y (N_x//2+1) complex values, so no row of S is written before it is read)."""
+        the x transforms run on the n_y rows kept only, and the window is copied out on every
+        core. S is consumed (the y transforms run in its memory). Into ``out`` if given (it may
+        be the start of S's own memory: a block of rows is read whole before its rows of
+        ``out`` are written, and a row of ``out``, n_y n_x reals, is shorter than a row of S,
+        N_y (N_x//2+1) complex values, so no row of S is written before it is read), else an
+        array of the work-array pool (the forward's data, the adjoint's image)."""
         m = S.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
         if out is None:
-            out = np.empty((m, n_y, n_x), dtype=self.dtype)
+            out = workspace.take((m, n_y, n_x), self.dtype)
         for rows in self._row_blocks(m):
             block = S[rows]
             if n_y2 > 1:
-                block = scipy.fft.ifft(block, axis=1, workers=-1, overwrite_x=True)[:, oy : oy + n_y]
-            out[rows] = scipy.fft.irfft(block, n=n_x2, axis=2, workers=-1)[:, :, ox : ox + n_x]
-            del block
+                fft_engine.fft_in_place(block, axis=1, inverse=True)
+            res = scipy.fft.irfft(block[:, oy : oy + n_y], n=n_x2, axis=2, workers=fft_engine.workers())
+            array_kernels.crop_rows(res, out[rows], 0, ox)
+            del block, res
             self._tick()
         return out
 
@@ -528,31 +533,34 @@ class PlanarOperator(pylops.LinearOperator):
         n_z = self._vol[0]
         # the image's k-space Y and the data's T share one array (`_kspace`): a chunk's columns
         # of Y are read before its columns of T are written, and no other chunk reads them
-        Y, T, _ = self._kspace(n_z, self.n_t)
-        self._lateral_spectrum(p0.reshape(self._vol), out=Y.reshape(n_z, n_y2, self._n_xr))
+        with step("forward: lateral FFT"):
+            Y, T = self._kspace(n_z, self.n_t)
+            self._lateral_spectrum(p0.reshape(self._vol), out=Y.reshape(n_z, n_y2, self._n_xr))
         for idx, klat2, groups, rows in self._chunks:  # columns in chunks of whole |k_lat| groups
-            # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
-            B = np.zeros((len(idx), n_z2), dtype=self._ctype)
-            nufft.gather_columns(Y, idx, B[:, :n_z])
-            B = fft_engine.dct1(B, axis=1, overwrite_x=True)  # depth: DCT-I of the real and imaginary parts
-            if rows is not None:
-                B[np.arange(n_z2)[None, :] >= rows[:, None]] = 0
-            R = nufft.spread(B, self._grid, klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
-                             groups=groups)
+            with step("forward: depth DCT-I"):
+                # depth: the n_z image rows of each column, zeros below, DCT-I of length N_z
+                B = workspace.take((len(idx), n_z2), self._ctype)
+                nufft.gather_columns(Y, idx, B)
+                B = fft_engine.dct1(B, axis=1, overwrite_x=True)  # of the real and imaginary parts
+                if rows is not None:
+                    array_kernels.zero_beyond(B, rows)
+            with step("forward: spreading"):
+                R = nufft.spread(B, self._grid, klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
+                                 groups=groups, out=workspace.take((len(idx), self._grid.L), self._ctype))
             del B
-            G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False, overwrite=True)  # (chunk, n_t)
+            with step("forward: temporal FFT"):  # the series back to time, into T's columns
+                nufft.scatter_fine_grid(R, self._grid, False, idx, T)
             del R
-            nufft.scatter_columns(G, idx, T)
-            del G
             self._tick()
         if len(self._skipped):
-            T[:, self._skipped] = 0
+            array_kernels.zero_columns(T, self._skipped)
         T = T.reshape(self.n_t, n_y2, self._n_xr)
-        if self.positions is None:
-            g = self._lateral_inverse(T)
-            return np.ascontiguousarray(g[:, 0, :] if self.is2d else g, dtype=self.dtype)
-        if self._nodes is not None:
-            return self._values_at_nodes(T)
+        with step("forward: inverse lateral FFT"):
+            if self.positions is None:
+                g = self._lateral_inverse(T)
+                return g[:, 0, :] if self.is2d else g
+            if self._nodes is not None:
+                return self._values_at_nodes(T)
         vals = np.empty((len(self.positions), self.n_t), dtype=self.dtype)
         for a, b in self._time_batches():  # the full spectrum batch by batch, then the type-2 NUFFT
             full = self._hermitian_full(T[a:b])
@@ -579,57 +587,60 @@ class PlanarOperator(pylops.LinearOperator):
             return self._pair.xp.asnumpy(self._pair.adjoint(data))
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
-        # the data's k-space A and the image's K (its rows only) share one array (`_kspace`),
-        # in pages of its own where the system can release them: the image is then written
-        # over K's first rows and the rest released (`_release_after`), so the adjoint's
-        # output takes no memory beside the k-space
-        A, K, pages = self._kspace(self.n_t, n_z, releasable=True)
-        spectrum = A.reshape(self.n_t, n_y2, self._n_xr)
-        if self.positions is None:
-            self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)
-        else:
-            self._spectrum_at_points(data, spectrum)
+        # the data's k-space A and the image's K (its rows only) share one array (`_kspace`)
+        with step("adjoint: lateral FFT"):
+            A, K = self._kspace(self.n_t, n_z)
+            spectrum = A.reshape(self.n_t, n_y2, self._n_xr)
+            if self.positions is None:
+                self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)
+            else:
+                self._spectrum_at_points(data, spectrum)
         for idx, klat2, groups, rows in self._chunks:  # columns in chunks of whole |k_lat| groups
             U = nufft.to_fine_grid(A, self._grid, t0_is_zero=False, columns=idx)
-            F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
-                               inversion=False, n_chunks=1, groups=groups)
+            with step("adjoint: interpolation"):
+                F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
+                                   inversion=False, n_chunks=1, groups=groups,
+                                   out=workspace.take((len(idx), n_z2), U.dtype))
             del U
-            if rows is not None:
-                F[np.arange(n_z2)[None, :] >= rows[:, None]] = 0
-            F = fft_engine.dct1(F, axis=1, overwrite_x=True)
-            nufft.scatter_columns(F[:, :n_z], idx, K)
+            with step("adjoint: depth DCT-I"):
+                if rows is not None:
+                    array_kernels.zero_beyond(F, rows)
+                F = fft_engine.dct1(F, axis=1, overwrite_x=True)
+            with step("adjoint: scatter"):
+                nufft.scatter_columns(F[:, :n_z], idx, K)
             del F
             self._tick()
-        if len(self._skipped):
-            K[:, self._skipped] = 0
-        K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
-        if n_z == n_z2:
-            K[-1] *= 0.5
-        out = None
-        if pages is not None:
-            out = np.frombuffer(pages, dtype=self.dtype, count=n_z * n_y * n_x).reshape(n_z, n_y, n_x)
-        p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr), out)
-        del A, K
-        if pages is not None:
-            _release_after(pages, p.nbytes)
-        p = p[:, 0, :] if self.is2d else p
-        return np.ascontiguousarray(p, dtype=self.dtype)
+        with step("adjoint: inverse lateral FFT"):
+            if len(self._skipped):
+                array_kernels.zero_columns(K, self._skipped)
+            # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends (the last row only where the image reaches it)
+            array_kernels.scale_rows(K, 0.5, 0.5 if n_z == n_z2 else 1.0)
+            # the image in an array of its own (the pool's): the k-space is free again as soon as the
+            # adjoint returns, however long the caller keeps the image (a power iteration feeds it to the
+            # next forward, which then takes the same k-space)
+            p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr))
+            del A, K
+            return p[:, 0, :] if self.is2d else p
 
     def _values_at_nodes(self, T: np.ndarray) -> np.ndarray:
         """Point forward for sensors on working-grid nodes: the inverse lateral DFT of the half
         spectrum T (n_t, N_y, N_x//2+1) (= Re Σ_k G(k) e^{i k·x_m} / (N_x N_y) of the full
         Hermitian spectrum, exactly), on the rows that hold sensors only; (n_points, n_t). T
-        is consumed (the y transforms run in its memory)."""
+        is consumed (the y transforms run in its memory); the rows and the nodes' values are
+        copied on every core."""
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
         vals = np.empty((len(row_of), self.n_t), dtype=self.dtype)
-        for a, b in self._time_batches():
+        batches = self._time_batches()
+        kept = workspace.take((batches[0][1] - batches[0][0], len(rows), self._n_xr), self._ctype)
+        for a, b in batches:
             block = T[a:b]
             if n_y2 > 1:
-                block = np.take(scipy.fft.ifft(block, axis=1, workers=-1, overwrite_x=True), rows, axis=1)
-            g = scipy.fft.irfft(block, n=n_x2, axis=2, workers=-1)  # (b - a, len(rows), N_x)
-            vals[:, a:b] = g[:, row_of, cols].T
+                fft_engine.fft_in_place(block, axis=1, inverse=True)
+            array_kernels.take_rows(block, rows, kept[: b - a])
+            g = scipy.fft.irfft(kept[: b - a], n=n_x2, axis=2, workers=fft_engine.workers())  # (b - a, len(rows), N_x)
+            array_kernels.gather_nodes(g, row_of, cols, a, vals)
             del block, g
             self._tick()
         return vals
@@ -638,24 +649,24 @@ class PlanarOperator(pylops.LinearOperator):
         """Adjoint of `_values_at_nodes`: the data placed on their nodes of the working grid
         (zero elsewhere), lateral half spectrum (n_t, N_y, N_x//2+1) — the Hermitian part of
         Σ_m g_m e^{-i k·x_m} exactly, since the placed field is real — written into ``H``
-        (zeros of that shape) and returned."""
+        (every entry) and returned; the placing and the rows' copies on every core."""
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
-        breaks = (np.flatnonzero(np.diff(rows) != 1) + 1).tolist()  # rows is sorted: where runs of adjacent rows end
-        runs = list(zip([0, *breaks], [*breaks, len(rows)]))
+        slot = np.full(n_y2, -1, dtype=np.int64)  # each grid row's place among the rows with sensors
+        slot[rows] = np.arange(len(rows))
+        values = np.ascontiguousarray(data)
+        ones = np.ones(len(row_of))
         batches = self._time_batches()
-        # one buffer for all batches: each writes the same nodes, the rest stays zero
-        grid = np.zeros((batches[0][1] - batches[0][0], len(rows), n_x2), dtype=self.dtype)
+        grid = workspace.take((batches[0][1] - batches[0][0], len(rows), n_x2), self.dtype)
         for a, b in batches:
             placed = grid[: b - a]
-            placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
-            spectra = scipy.fft.rfft(placed, axis=2, workers=-1)
+            array_kernels.place_points(values, ones, row_of, cols, a, placed)  # distinct nodes (`_lattice_nodes`)
+            spectra = scipy.fft.rfft(placed, axis=2, workers=fft_engine.workers())
             block = H[a:b]
-            for j0, j1 in runs:  # runs of adjacent rows: numpy's H[a:b, rows] = took 16x longer
-                block[:, rows[j0] : rows[j0] + j1 - j0] = spectra[:, j0:j1]
+            array_kernels.embed_row_set(spectra, slot, block)
             if n_y2 > 1:
-                _fft_in_place(block, axis=1)
+                fft_engine.fft_in_place(block, axis=1)
             del spectra, block
             self._tick()
         return H
@@ -663,7 +674,7 @@ class PlanarOperator(pylops.LinearOperator):
     def _spectrum_at_points(self, data: np.ndarray, H: np.ndarray) -> np.ndarray:
         """Adjoint of the type-2 point evaluation: Hermitian part of the type-1 NUFFT
         Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, N_y, N_x//2+1),
-        written into ``H`` (zeros of that shape) and returned."""
+        written into ``H`` (every entry) and returned."""
         if self._nodes is not None:
             return self._spectrum_at_nodes(data, H)
         _, n_y, n_x = self.padded_shape
@@ -692,48 +703,6 @@ class PlanarOperator(pylops.LinearOperator):
 
     def _rmatvec(self, y: np.ndarray) -> np.ndarray:
         return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
-
-
-def _fft_in_place(x: np.ndarray, axis: int) -> None:
-    """In place, x <- its DFT along ``axis`` (complex, a view of a contiguous block of rows). pocketfft
-    transforms such an array in its own memory when allowed to overwrite it; the copy back
-    (x[...] = result: 10 ms of a 512 × 240 × 121 complex64 spectrum) runs only where it did not."""
-    res = scipy.fft.fft(x, axis=axis, workers=-1, overwrite_x=True)
-    if res.ctypes.data != x.ctypes.data or res.strides != x.strides:
-        x[...] = res
-
-
-def _anonymous_pages(nbytes: int) -> mmap.mmap | None:
-    """Zero-filled private anonymous memory of ``nbytes`` whose tail `_release_after` can hand
-    back to the system (mmap MAP_PRIVATE | MAP_ANONYMOUS + madvise MADV_DONTNEED, Linux and
-    other POSIX systems); None where those are missing (the caller allocates with numpy
-    instead).
-
-    Private, not Python's default MAP_SHARED: a shared anonymous mapping is backed by shared
-    memory (shmem), whose pages MADV_DONTNEED only unmaps (the process's resident size drops,
-    the system's memory does not until the mapping closes: a 256 MiB mapping kept 256 MiB of
-    ``Shmem`` in /proc/meminfo after the release), and which takes no transparent huge pages
-    (the first touch of 128 MiB: 0.106 s shared, 0.011 s private with MADV_HUGEPAGE, 2-core
-    machine)."""
-    private, anonymous = getattr(mmap, "MAP_PRIVATE", None), getattr(mmap, "MAP_ANONYMOUS", None)
-    if (nbytes <= 0 or private is None or anonymous is None or not hasattr(mmap, "MADV_DONTNEED")
-            or not hasattr(mmap.mmap, "madvise")):
-        return None
-    pages = mmap.mmap(-1, nbytes, flags=private | anonymous)
-    if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy asks for its large arrays: fewer page faults
-        try:
-            pages.madvise(mmap.MADV_HUGEPAGE)
-        except OSError:  # a kernel without transparent huge pages: small pages do
-            pass
-    return pages
-
-
-def _release_after(pages: mmap.mmap, nbytes: int) -> None:
-    """Hand the pages of ``pages`` after its first ``nbytes`` back to the system (they read as
-    zeros if touched again): the resident memory drops to what is kept."""
-    start = -(-nbytes // mmap.PAGESIZE) * mmap.PAGESIZE
-    if start < len(pages):
-        pages.madvise(mmap.MADV_DONTNEED, start, len(pages) - start)
 
 
 def _lattice_nodes(pos: np.ndarray, padded_shape: tuple[int, ...],

@@ -33,11 +33,12 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.constants import C_DEFAULT
-from fpscan.physics import fft_engine, nufft
+from fpscan.physics import fft_engine, nufft, workspace
 from fpscan.physics.axes import centred_axis, node_indices
 from fpscan.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from fpscan.physics.lateral import irfft_lateral, pad_spectrum
 from fpscan.physics.nufft_plans import lateral_plan
+from fpscan.physics.step_times import step
 from fpscan.service.progress import Fraction, Rising, Span, rising
 from fpscan.service.progress import span as span_of
 from fpscan.service.recon import checks, memory
@@ -203,7 +204,7 @@ def _cubic_columns(A_cols: np.ndarray, n_t: int, klat2: np.ndarray, kz: np.ndarr
         a[:, 0] *= 0.5
     import scipy.fft  # on use: this mode imports scipy.interpolate anyway
 
-    S = scipy.fft.fft(a, n=L, axis=-1, workers=-1)
+    S = scipy.fft.fft(a, n=L, axis=-1, workers=fft_engine.workers())
     # E on the DFT grid theta_j = 2 pi j / L of the mirrored series (L = 2 n_t - 1 rounded
     # up to a fast length: a finer grid), |j| <= (L - 1) // 2 (theta in (-pi, pi))
     j = np.arange(-((L - 1) // 2), (L - 1) // 2 + 1)
@@ -234,8 +235,9 @@ def _cubic_columns(A_cols: np.ndarray, n_t: int, klat2: np.ndarray, kz: np.ndarr
 def _workspace(n_t: int, n_z: int, n_cols: int, rdtype: np.dtype) -> np.ndarray:
     """Memory for the lateral spectrum (n_t, n_cols) that `_invert` reuses for its depth
     spectrum (n_cols, n_z) and the image: max(n_t, n_z) n_cols complex values of the
-    working precision (complex64 for float32), flat."""
-    return np.empty(max(n_t, n_z) * n_cols, dtype=np.result_type(rdtype, np.complex64))
+    working precision (complex64 for float32), flat; from the work-array pool
+    (`fpscan.physics.workspace`: an earlier call's, warm, once its image is dropped)."""
+    return workspace.take(max(n_t, n_z) * n_cols, np.result_type(rdtype, np.complex64))
 
 
 def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray | None:
@@ -283,30 +285,34 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         del a, A  # read: its memory (space) takes the depth spectrum
         if progress is not None:
             progress(0.3)
-        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
-                           progress=span_of(progress, 0.3, 0.75),
-                           out=_reuse(space, (U.shape[0], n_z), U.dtype))
+        with step("interpolation"):
+            F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
+                               progress=span_of(progress, 0.3, 0.75),
+                               out=_reuse(space, (U.shape[0], n_z), U.dtype))
     if progress is not None:
         progress(0.75)
-    F = np.ascontiguousarray(F, dtype=ctype)
-    # DCT-I along depth of the real and imaginary parts (in place, through an interleaved view)
-    F = fft_engine.dct1(F, axis=1, overwrite_x=True)
-    K = _reuse(U, (n_z, n_y * n_xr), ctype)  # the fine grid is read: its memory takes K
-    del U
-    if K is None:
-        K = np.empty((n_z, n_y * n_xr), dtype=ctype)
-    nufft.transpose(F, K)
-    K = K.reshape(n_z, n_y, n_xr)
-    del F
+    with step("depth DCT-I"):
+        F = np.ascontiguousarray(F, dtype=ctype)
+        # DCT-I along depth of the real and imaginary parts (in place, through an interleaved view)
+        F = fft_engine.dct1(F, axis=1, overwrite_x=True)
+    with step("transpose"):
+        K = _reuse(U, (n_z, n_y * n_xr), ctype)  # the fine grid is read: its memory takes K
+        del U
+        if K is None:
+            K = np.empty((n_z, n_y * n_xr), dtype=ctype)
+        nufft.transpose(F, K)
+        K = K.reshape(n_z, n_y, n_xr)
+        del F
     if progress is not None:
         progress(0.85)
-    ups_y = n_y > 1
-    if upsample > 1:
-        K = pad_spectrum(K, n_y, n_x, upsample, ups_y)
-    shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
-    p0 = irfft_lateral(K[: keep[0]], shape, out=_reuse(space, keep, rdtype), keep=keep[1:])
-    if upsample > 1:
-        p0 *= upsample ** (2 if ups_y else 1)
+    with step("inverse lateral FFT"):
+        ups_y = n_y > 1
+        if upsample > 1:
+            K = pad_spectrum(K, n_y, n_x, upsample, ups_y)
+        shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
+        p0 = irfft_lateral(K[: keep[0]], shape, out=_reuse(space, keep, rdtype), keep=keep[1:])
+        if upsample > 1:
+            p0 *= upsample ** (2 if ups_y else 1)
     if progress is not None:
         progress(1.0)
     return p0.astype(rdtype, copy=False)
@@ -444,7 +450,8 @@ def reconstruct_grid(
     >>> r.p0.shape, r.p0.dtype, np.unravel_index(r.p0.argmax(), r.p0.shape)  # x upsampled 2x
     ((16, 64), dtype('float32'), (np.int64(8), np.int64(32)))
     """
-    data = checks.finite_array("data", data, (2, 3))
+    with step("input check"):
+        data = checks.finite_array("data", data, (2, 3))
     dx = checks.positive("dx", dx)
     dy = dx if dy is None else checks.positive("dy", dy)
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
@@ -465,9 +472,10 @@ def reconstruct_grid(
     keep = (n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
 
     def on_cpu() -> np.ndarray:
-        space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), rdtype)
-        A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2),
-                             out=_reuse(space, (n_t, n_yp, n_xp // 2 + 1), space.dtype))
+        with step("lateral FFT"):
+            space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), rdtype)
+            A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2),
+                                 out=_reuse(space, (n_t, n_yp, n_xp // 2 + 1), space.dtype))
         if kernel is not None:
             kernel(0.1)
         return _invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample, keep,
@@ -720,17 +728,33 @@ def _lateral_spectrum(al: np.ndarray, h: np.ndarray, pos: np.ndarray, axes: tupl
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     cell = dx * (dy if d == 2 else 1.0)
-    weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
     on_grid = node_indices(pos, axes, steps)
     if on_grid is not None:
-        filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
-        filled[:, on_grid[1], on_grid[0]] = weighted
-        del weighted
-        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), space.dtype))
-        del filled
+        A = _reuse(space, (n_t, n_y, n_x // 2 + 1), space.dtype)
+        assert A is not None
+        if fft_engine.is_small(n_t * n_y * n_x):
+            filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
+            filled[:, on_grid[1], on_grid[0]] = (al * (h / cell)[:, None]).T
+            A = fft_engine.rfft2(filled, axes=(1, 2), out=A)
+        else:  # the weighted A-lines placed on their nodes slab by slab, on every core
+            from fpscan.physics.array_kernels import place_points
+
+            # the products in float64, rounded once to the working precision (as numpy's were)
+            values = np.ascontiguousarray(al if al.dtype in (np.float32, np.float64) else al.astype(np.float64))
+            scale = h / cell
+            rows, cols = on_grid[1].astype(np.int64), on_grid[0].astype(np.int64)
+            step = max(1, fft_engine.SLAB_BYTES // (n_y * n_x * rdtype.itemsize))
+            buf = workspace.take((min(step, n_t), n_y, n_x), rdtype)
+
+            def planes(a: int, b: int) -> np.ndarray:
+                place_points(values, scale, rows, cols, a, buf[: b - a])
+                return buf[: b - a]
+
+            fft_engine.rfft2_planes(planes, n_t, n_y, n_x, out=A, step=step)
         if kernel is not None:
             kernel(0.3)
         return A
+    weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
     A = _type1(np.ascontiguousarray(weighted, dtype=space.dtype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
                span_of(kernel, 0.0, 0.3))
     del weighted
@@ -828,16 +852,20 @@ def reconstruct_points(
     >>> r.p0.shape, np.unravel_index(r.p0.argmax(), r.p0.shape), r.params["method"]
     ((16, 32), (np.int64(8), np.int64(16)), 'nedner')
     """
-    al = checks.finite_array("alines", alines, (2,))
+    with step("input check"):
+        al = checks.finite_array("alines", alines, (2,))
     n_points, n_t = al.shape
     if n_t < 2:
         raise ValueError(f"alines need at least 2 time samples, got {n_t}")
-    pos = _check_positions(positions, n_points)
+    with step("positions"):
+        pos = _check_positions(positions, n_points)
     d = pos.shape[1]
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
-    axes, steps = _output_grid(pos, grid)
+    with step("positions"):
+        axes, steps = _output_grid(pos, grid)
     dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0, pitch=steps[0])  # the lattice's pitch: the depth rule's
-    h = _area_weights(weights, pos)
+    with step("weights"):
+        h = _area_weights(weights, pos)
     n_x_out = len(axes[0])
     n_y_out = len(axes[1]) if d == 2 else 1
     square = d == 2 and abs(steps[1] - steps[0]) <= 1e-9 * steps[0]
@@ -854,7 +882,8 @@ def reconstruct_points(
     keep = (n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample)
 
     def spectrum() -> np.ndarray:
-        return _lateral_spectrum(al, h, pos, axes, steps, (n_y, n_x), eps, rdtype, space, kernel)
+        with step("lateral spectrum"):
+            return _lateral_spectrum(al, h, pos, axes, steps, (n_y, n_x), eps, rdtype, space, kernel)
 
     def on_cpu() -> np.ndarray:
         return _invert(spectrum(), n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample, keep,

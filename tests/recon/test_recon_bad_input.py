@@ -128,20 +128,24 @@ def test_memory_estimate_grows_with_size_and_halves_with_float32():
     assert 4 * 1024 * 226 * 226 * 8 < big < 20 * 1024 * 226 * 226 * 8
 
 
+@pytest.mark.parametrize("shape", [(40, 5, 6), (300, 20, 20)])
 @pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 @pytest.mark.parametrize("where", [0, 777, -1])
-def test_a_single_nan_or_inf_anywhere_is_found_in_every_precision(dtype, bad, where):
-    """`checks.finite_array` sums in the array's own precision: one NaN or ±inf anywhere,
-    in float16, float32 or float64, is refused; finite values whose sum overflows that
-    precision (float16's 65504, float32's 3.4e38) pass; integers pass unsummed."""
+def test_a_single_nan_or_inf_anywhere_is_found_in_every_precision(shape, dtype, bad, where):
+    """`checks.finite_array` sums a small array in its own precision and checks a large one's
+    exponent bits on every core (120 000 elements: above `fpscan.physics.fft_engine.SMALL_ELEMENTS`):
+    one NaN or ±inf anywhere, in float16, float32 or float64, is refused; finite values whose sum
+    overflows that precision (float16's 65504, float32's 3.4e38) pass; integers pass unsummed."""
     from fpscan.service.recon.checks import finite_array
 
-    data = np.random.default_rng(1).standard_normal((40, 5, 6)).astype(dtype)
+    data = np.random.default_rng(1).standard_normal(shape).astype(dtype)
     data.reshape(-1)[where] = bad
     with pytest.raises(ValueError, match="NaN or inf"):
         finite_array("data", data, (3,))
-    big = np.full((40, 5, 6), np.finfo(dtype).max / 2, dtype=dtype)  # finite, its sum is not
+    big = np.full(shape, np.finfo(dtype).max / 2, dtype=dtype)  # finite, its sum is not
     assert finite_array("data", big, (3,)) is big
-    ints = np.full((40, 5, 6), np.iinfo(np.int64).max, dtype=np.int64)
+    tiny = np.full(shape, np.finfo(dtype).smallest_subnormal, dtype=dtype)  # finite, the exponent bits all clear
+    assert finite_array("data", tiny, (3,)) is tiny
+    ints = np.full(shape, np.iinfo(np.int64).max, dtype=np.int64)
     assert finite_array("data", ints, (3,)) is ints

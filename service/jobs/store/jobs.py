@@ -175,14 +175,16 @@ class JobRecords(EventLog):
         args.append(int(limit))
         with self._lock:
             return [self._row(r) for r in self._db.execute(sql, args).fetchall()]
-    def update_params(self, job_id: str, params: dict) -> None:
-        """Merge ``params`` into the job's parameters (e.g. the scan file name)."""
+    def update_params(self, job_id: str, params: dict, *, durable: bool = True) -> None:
+        """Merge ``params`` into the job's parameters (e.g. the scan file name); not flushed by
+        itself where not ``durable`` (a write the next durable commit, e.g. its state's, flushes
+        with it: the WAL is written in order)."""
         def work(db: sqlite3.Connection) -> None:
             row = db.execute("SELECT params FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is not None:
                 merged = {**json.loads(row["params"]), **params}
                 db.execute("UPDATE jobs SET params = ? WHERE id = ?", (json.dumps(merged), job_id))
-        self._tx(work)
+        self._tx(work, durable=durable)
     def running_memory(self) -> int:
         with self._lock:
             return int(self._db.execute(

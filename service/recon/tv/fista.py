@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from fpscan.physics.array_kernels import difference_norm
 from fpscan.service.progress import span
 from fpscan.service.recon.limits import DEFAULT_TOL
 from fpscan.service.recon.tv.kernels import Kernels, array_kernels, array_module
@@ -361,36 +362,6 @@ def debias_refit(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.nd
     refit = run_fista(forward, G, g, start, 0.0, L, True, DEBIAS_ITER, 0.0, started, time_limit, None, residual,
                    support=support, poll=poll)
     return Solved(refit.x, it, stop_reason, change, refit.Ax, refit.L, lam, exact_from)
-
-
-@numba.njit(parallel=True, cache=True)
-def difference_norm(a: np.ndarray, b: np.ndarray) -> float:
-    """‖a − b‖₂ of two flat arrays, summed in float64 (no work array).
-
-    Parameters
-    ----------
-    a, b : ndarray
-        Flat ``(N,)`` arrays (float32 or float64).
-
-    Returns
-    -------
-    float
-        The distance, their unit.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from fpscan.service.recon.tv.fista import difference_norm
-    >>> difference_norm(np.array([3.0, 0.0]), np.array([0.0, 4.0]))
-    5.0
-    >>> difference_norm(np.ones(3, dtype=np.float32), np.ones(3, dtype=np.float32))
-    0.0
-    """
-    total = 0.0
-    for i in numba.prange(a.size):
-        d = np.float64(a[i]) - np.float64(b[i])
-        total += d * d
-    return math.sqrt(total)
 
 
 @numba.njit(parallel=True, cache=True)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from fpscan.physics import workspace
 from fpscan.service.progress import span
 from fpscan.service.recon.tv.geometry import geometry_numbers
 from fpscan.service.recon.tv.lam import DiscrepancyRule
@@ -130,6 +131,7 @@ def set_up(record: Record, dev: str, report: Reporter, *, c: float, dx: float | 
                            positivity=positivity, memory_limit=memory_limit,
                            progress=span(report, 0.0, 0.05, "warm start"), device=dev)
     report(0.05, "warm start")
+    workspace.release()  # the warm start's work arrays (free now) make way for the operator's
     # A, and B = P Aᵀ: the exact adjoint with NER's k-space weight P = k_z / |k|
     model = Model(record, warm, c, pos, t0=t0, eps=eps, dtype=dtype, periodic=periodic, checkpoint=report.poll,
                   memory_limit=memory_limit, device=dev)

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 import scipy.fft
 
+from fpscan.physics import array_kernels, fft_engine, workspace
 from fpscan.physics.fast_lengths import fast_real_shape
 
 __all__ = ["NerWeight", "ner_weight", "apply_weight", "apply_weight_on"]
@@ -105,7 +106,8 @@ def _weight_kernel(c: np.ndarray, kz: np.ndarray, lat2: np.ndarray) -> None:
 
 def apply_weight(P: NerWeight, x: np.ndarray) -> np.ndarray:
     """P x: the multiplier ``P`` on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``
-    (all axes), cropped back, in a compiled kernel (no image of its own).
+    (all axes), cropped back, in a compiled kernel (no image of its own); the padded image in a
+    work array (`fpscan.physics.workspace`), the padding and the crop on every core.
 
     Parameters
     ----------
@@ -118,8 +120,8 @@ def apply_weight(P: NerWeight, x: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray
-        P x, x's shape and dtype (``x`` itself where padded; the transform runs in place when no
-        axis is padded).
+        P x, x's shape and dtype (``x`` itself where padded, or a C-contiguous copy of a ``x``
+        that is not; the transform runs in place when no axis is padded).
 
     Examples
     --------
@@ -137,15 +139,22 @@ def apply_weight(P: NerWeight, x: np.ndarray) -> np.ndarray:
         from fpscan.service.recon.tv.kernels import array_module
 
         return apply_weight_on(array_module(x), P, x)
-    pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]
-    padded = any(after for _, after in pad)
-    c = scipy.fft.dctn(np.pad(x, pad) if padded else x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    padded = tuple(P.shape) != tuple(x.shape)
+    volume = (P.shape[0], P.lat2.shape[0], P.shape[-1])  # the kernels' 3-D views (2-D: one y row)
+    if padded:  # zero-padded into a work array (`fpscan.physics.workspace`), on every core
+        x = np.ascontiguousarray(x)
+        c = workspace.take(volume, x.dtype)
+        array_kernels.pad_volume(x.reshape(x.shape[0], -1, x.shape[-1]), c)
+        c = c.reshape(P.shape)
+    else:
+        c = x
+    c = scipy.fft.dctn(c, type=2, norm="ortho", workers=fft_engine.workers(), overwrite_x=True)
     c = np.ascontiguousarray(c)  # (the kernel writes through a 3-D view of it)
-    _weight_kernel(c.reshape(P.shape[0], P.lat2.shape[0], P.shape[-1]), P.kz, P.lat2)
-    c = scipy.fft.idctn(c, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    _weight_kernel(c.reshape(volume), P.kz, P.lat2)
+    c = scipy.fft.idctn(c, type=2, norm="ortho", workers=fft_engine.workers(), overwrite_x=True)
     if not padded:
         return c
-    x[...] = c[tuple(slice(0, n) for n in x.shape)]
+    array_kernels.crop_rows(c.reshape(volume), x.reshape(x.shape[0], -1, x.shape[-1]), 0, 0)
     return x
 
 

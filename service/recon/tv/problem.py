@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.physics.resample import resample
+from fpscan.physics.step_times import step
 from fpscan.service.recon import checks, memory
 from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
 from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
@@ -463,7 +464,9 @@ class Model:
         pair = self.op._pair
         if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
             return apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
-        return apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
+        image = self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape)
+        with step("preconditioner"):
+            return apply_weight(self.P, image)
 
     def precondition(self, v: np.ndarray) -> np.ndarray:
         """P v of an image (NER's weight, `fpscan.service.recon.tv.preconditioner`; v may be
@@ -480,7 +483,14 @@ class Model:
     def residual(self, Ax: np.ndarray) -> float:
         if self.xp is not np:
             return float(self.xp.linalg.norm(Ax - self.g_dev))
-        return float(np.linalg.norm(Ax - self.g))
+        if Ax.shape != self.g.shape or not (Ax.flags.c_contiguous and self.g.flags.c_contiguous):
+            return float(np.linalg.norm(Ax - self.g))
+        # compiled, on every core: numpy's norm sums in BLAS, whose OpenBLAS threads spin for about
+        # 0.1 s after it, and the adjoint that follows ran on one core of two (tv at half the
+        # paper's size 1.2x from 1 to 2 cores; docs/performance.md, "CPU scaling on the 2-core machine")
+        from fpscan.physics.array_kernels import difference_norm
+
+        return float(difference_norm(Ax.reshape(-1), self.g.reshape(-1)))
 
     @property
     def operator_pairs(self) -> float:

@@ -24,6 +24,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from fpscan.physics import workspace
+
 __all__ = ["DUAL_SCALE", "store_dual", "restore_dual", "store_gradient", "gain_lower_bound", "store_move", "extrapolate_fixed"]
 
 #: the fixed-point scale of a float32 dual between calls (`store_dual`): |q| <= 1 as int16, q · 32767
@@ -60,10 +62,10 @@ def store_dual(dual: np.ndarray) -> np.ndarray:
     True
     """
     if dual.dtype == np.float32:
-        out = np.empty(dual.shape, dtype=np.int16)
+        out = workspace.take(dual.shape, np.int16)
         _quantise(dual.reshape(-1), out.reshape(-1), DUAL_SCALE)
     else:
-        out = np.empty(dual.shape, dtype=np.float32)
+        out = workspace.take(dual.shape, np.float32)
         _cast(dual.reshape(-1), out.reshape(-1))
     return out
 
@@ -99,7 +101,7 @@ def store_gradient(g: np.ndarray) -> tuple[np.ndarray, float]:
     flat = g.reshape(-1)
     top = _max_abs(flat)
     quantum = top / DUAL_SCALE if top > 0 else 1.0
-    out = np.empty(flat.shape, dtype=np.int16)
+    out = workspace.take(flat.shape, np.int16)
     _quantise(flat, out, 1.0 / quantum)
     return out, quantum
 
@@ -181,7 +183,7 @@ def restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
     >>> restore_dual(np.array([0.25], dtype=np.float32), np.float64).dtype
     dtype('float64')
     """
-    out = np.empty(stored.shape, dtype=dtype)
+    out = workspace.take(stored.shape, dtype)
     if stored.dtype == np.int16:
         _dequantise(stored.reshape(-1), out.reshape(-1), 1.0 / DUAL_SCALE)
     else:
@@ -251,7 +253,7 @@ def store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_la
     0.0
     """
     quantum = b_max / DUAL_SCALE if b_max > 0 else 0.0
-    out = np.empty(xn.shape, dtype=np.int16)
+    out = workspace.take(xn.shape, np.int16)
     _quantise_move(xn, v, gy, inv_l, b_last, scale_last, 1.0 / quantum if quantum > 0 else 0.0, out)
     return out, quantum
 
