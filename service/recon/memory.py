@@ -332,7 +332,8 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     the point NUFFTs. While the proximal map works: 2 + d + d/2 vectors (the gradient step,
     the preconditioned gradient, the dual at full precision beside the stored one,
     `fpscan.service.recon.tv.prox.tv_prox_stored`), the move and, in the exact phase, the gradient
-    kept for the next gain test in int16, beside the operator's arrays (kept for its next application). The
+    kept for the next gain test in int16, beside the operator's arrays that the work-array pool keeps
+    for its next application (those of at least `fpscan.physics.workspace.MIN_BYTES`). The
     preconditioner P is computed where it is applied, on the image padded to fast lengths
     after the operator's k-space is free again. Both phases add the data-sized vectors (the data
     in float64, A x, A y and a residual in ``dtype``), and the estimate 10 % (allocator, FFT
@@ -370,6 +371,7 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     >>> tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256, "float32") < small
     True
     """
+    from fpscan.physics import workspace
     from fpscan.physics.grid_sizes import grid_length
 
     b = np.dtype(dtype).itemsize
@@ -379,13 +381,17 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     cols = ny2 * (nx2 // 2 + 1) if kept_columns is None else max(1, int(kept_columns))
     fine = grid_length(n_t)
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
-    operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
-                        + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
+    # the k-space, a chunk's fine-grid and depth arrays, a batch of full lateral spectra (complex)
+    parts = (2 * b * cols * max(image_shape[0], n_t), 2 * b * chunk * fine, 2 * b * chunk * max(nz2, n_t),
+             2 * b * 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
+    operator = sum(parts)
+    # those the work-array pool keeps between applications (`fpscan.physics.workspace.MIN_BYTES`)
+    kept = sum(p for p in parts if p >= workspace.MIN_BYTES)
     # y (or the new iterate), the adjoint's image, the stored dual, the last gradient, the last move and
     # (in the exact phase) the last proximal step's s as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
     with_operator = 2 * n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator
     # the gradient step, G(A y − g), the move and (in the exact phase) the gradient kept for the next gain
     # test as int16, the dual at full precision beside the stored one, beside the operator's arrays,
     # which the work-array pool keeps for the next application
-    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2 + operator
+    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2 + kept
     return int(1.10 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))

@@ -156,4 +156,4 @@ METHOD = Method(name="nedner", title="NEDNER-NUFFT (any sensor mask)", needs_gri
                 run=run, source="paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
                 peak_memory=peak_model("planar_peak", temporal="nufft", points=True), order=10,
                 work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
-                kernel_modules=("fpscan.physics.nufft_kernels",))
+                kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.physics.array_kernels"))

@@ -197,6 +197,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
     """
     import numpy as np
 
+    from fpscan.constants import C_DEFAULT
     from fpscan.service.recon.planar import reconstruct_grid
 
     n, dx, dt = 64, 1e-4, 2e-8
@@ -206,11 +207,11 @@ def warm_up(dtypes: Sequence[str]) -> None:
         reconstruct_grid(data, dx, dt, dtype=d, device="cpu")
         # the depth grid of c·dt too: its inverse transform's crop and scatter kernels (a job at
         # the default grid then loads nothing: the first NER at 512 x 192² took 0.42 s, the next 0.17 s)
-        reconstruct_grid(data, dx, dt, dtype=d, device="cpu", dz=1500.0 * dt)
+        reconstruct_grid(data, dx, dt, dtype=d, device="cpu", dz=C_DEFAULT * dt)
         reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d, device="cpu")  # a line of n * n sensors
 
 
 METHOD = Method(name="ner", title="NER-NUFFT (full regular grid)", needs_grid=True, options_model=Options, run=run,
                 source="paper §3.1: temporal NUFFT, lateral FFT",
                 peak_memory=peak_model("planar_peak", temporal="nufft"), order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
-                kernel_modules=("fpscan.physics.nufft_kernels",))
+                kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.physics.array_kernels"))

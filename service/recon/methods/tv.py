@@ -633,24 +633,32 @@ def warm_up(dtypes: Sequence[str]) -> None:
     import numpy as np
 
     from fpscan.constants import C_DEFAULT
+    from fpscan.physics.axes import centred_axis
     from fpscan.physics.forward import forward_grid
     from fpscan.service.recon.operator import PlanarOperator
     from fpscan.service.recon.tv import fista, preconditioner, prox, stores
 
     dx, dt = 1e-4, 2e-8
+    axis = centred_axis(6, dx)
+    nodes = np.array([[axis[0], axis[0]], [axis[2], axis[1]], [axis[5], axis[3]]])
     for d in dtypes:  # the model-based operator runs its transforms in the working precision
         op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d, device="cpu")
         op.adjoint(op.forward(np.ones((4, 6, 6))))
+        at_points = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, positions=nodes, dtype=d, device="cpu")
+        for data in (np.ones((3, 32)), np.ones((3, 32), dtype=d)):  # A-lines as given and in the working precision
+            at_points.adjoint(data)
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
         prox.tv_prox(v, 0.1, True, None, None)
         prox.tv_prox_stored(v, 0.1, True, None, [prox.tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
         prox.tv_norm(v)
         preconditioner.apply_weight(preconditioner.ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # P's kernel
+        preconditioner.apply_weight(preconditioner.ner_weight((6, 8, 8), dx, C_DEFAULT * dt), v)  # on a padded grid
         flat = v.ravel()  # the solver's in-place vector kernels
         fista.axpy(flat, flat, 0.5)
         move = stores.store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
         stores.extrapolate_fixed(flat, move[0], 0.5)
         fista.difference_norm(flat, flat)
+        fista.difference_norm(flat, flat.astype(np.float64))  # A x against the data (float64)
         stores.gain_lower_bound(flat, stores.store_gradient(v))  # the last gradient's 16-bit wait
         fista.moves(flat, flat, flat, 1.0, move[0], 0.5, 0.5)
         dual = np.zeros((3, 4, 6, 6), dtype=d)  # the dual's wait between iterations
@@ -687,6 +695,6 @@ METHOD = Method(
     needs_grid=False, options_model=Options, run=run,
     source="½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory=peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
-    kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.service.recon.tv.prox", "fpscan.service.recon.tv.stores",
+    kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.physics.array_kernels", "fpscan.service.recon.tv.prox", "fpscan.service.recon.tv.stores",
                     "fpscan.service.recon.tv.fista", "fpscan.service.recon.tv.preconditioner"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True, summary=SUMMARY, stop_waits_for=STOP_WAITS_FOR)
