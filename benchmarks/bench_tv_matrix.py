@@ -10,7 +10,12 @@ the k-Wave files):
 - ``points``: ``$FPSCAN_SHARED/data/kwave2d_points.h5`` (2-D, a line of 1024 sensors at 50 µm, 3519
   samples of 10 ns; point targets on a 256 × 1024 grid);
 - ``paper``: the paper's analytic balls at half size (`bench_tv_paper.paper_case`'s scan at scale
-  0.5: a 113² lattice of 60 µm, 512 samples of 8 ns, three balls 1.4-2.2 mm deep), exact A-lines.
+  0.5: a 113² lattice of 60 µm, 512 samples of 8 ns, three balls 1.4-2.2 mm deep), exact A-lines;
+- ``family``: the 24 half-size members of `tv_family` (seeded mixes of balls and vessel segments 1.5-6
+  mm deep on the paper's 113² lattice, exact A-lines), ``family-full``: its 3 members at the paper's
+  full size (226²), or single members by name (``family-07``, ``family-full-1``). Each member is one
+  row with its own mask and noise (`tv_family.COMBOS`; ``--masks`` and ``--noise`` select among
+  them), its noise seeded by ``--seed`` + the member's seed.
 
 Masks (``--masks``): equi-steradian (3-D) / equiangular (2-D) masks of 4 % and 11 % of the lattice
 (`fpscan.service.plans.equisteradian_mask` / `equiangular_mask`) around a point of interest under the
@@ -24,11 +29,13 @@ Per row:
 
 - **tv**: `fpscan.service.pipeline.reconstruct` (the one dispatch the CLI and the server call) with
   method ``tv`` at its defaults, float32; on the k-Wave cases with ``dz`` and ``n_z`` of the
-  phantom's grid (as a user comparing with p0 would), on the paper's case at its own default
-  grid (CC with the balls sampled on that grid);
+  phantom's grid (as a user comparing with p0 would), on the paper's case and the family at its own
+  default grid (CC with the balls sampled on that grid, `tv_family.balls_p0`);
 - **ref**: the same with the whole record at full band (``whole_record``, the record's Nyquist
   frequency declared as the sensor's band): the grid dz = c dt, the same λ rule;
-- **NER**: full-data NER (every lattice point of the same noisy record), clipped at 0;
+- **NER**: full-data NER (every lattice point of the same noisy record), clipped at 0; **NER s**:
+  one NER float32 of that record at NER's own default grid in the same process (best of 2, its
+  kernels compiled), and tv's time over it;
 - **CC** with p0 of each; **seen**: the vessel tree's thin segments (generations 3-4) whose
   centre line stands out of the background with a CNR >= 3 (`thin_segments_seen`), in tv's,
   ref's and NER's images;
@@ -39,11 +46,13 @@ Per row:
 - with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule, and
   on the vessel tree the thin segments seen at each.
 
-The gate: tv >= ref − 0.005 on every row; tv >= NER wherever ref >= NER; on
-the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and amp >= 0.85; with
-``--rule``, the 300-iteration image's CC − tv's <= 0.015; with ``--sweep``, the sweep's best CC −
-tv's <= 0.01. Rows run in ``--jobs`` processes, the strongest noise and the sparser mask first;
-``--json`` keeps them, so that an interrupted table resumes where it stopped.
+The gate: tv stops by its rule (converged) on every row; tv >= ref − 0.005 on every row; tv >= NER
+wherever ref >= NER; on the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and
+amp >= 0.85; at the paper's full size (the family's full-size members) <= 75 operator pairs and tv
+<= 150 x one NER float32 of the same process; with ``--rule``, the 300-iteration image's CC − tv's <=
+0.015; with ``--sweep``, the sweep's best CC − tv's <= 0.01. Rows run in ``--jobs`` processes, the
+strongest noise and the sparser mask first (the family's members after the other cases, in the
+family's order); ``--json`` keeps them, so that an interrupted table resumes where it stopped.
 
 Probes beside the defaults (each row records them; none is a default): ``--tol`` runs tv and ref to
 that stopping threshold; ``--declared HZ`` declares a sensor band for tv's run (the dataset's
@@ -53,7 +62,7 @@ that the band and the record alone differ from tv's run. A reference at its own 
 
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
 
-    .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper]
+    .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper family family-full]
         [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule [--rule-iterations 300]] [--sweep] [--seed 0]
         [--no-reference] [--tol T] [--declared HZ] [--ref-lam rule|tv] [--jobs 2] [--json out.jsonl]
 """
@@ -73,6 +82,8 @@ import numpy as np
 SHARED = Path(os.environ.get("FPSCAN_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 FILES = {"vessels": "kwave3d_vessel_tree.h5", "balls": "kwave3d_balls_yarn.h5", "points": "kwave2d_points.h5"}
 CASES = ("vessels", "balls", "points", "paper")
+#: the phantom family's groups of members (module doc; `tv_family`)
+FAMILY_GROUPS = ("family", "family-full")
 MASKS = (4, 11)
 NOISE = ("peak20", "peak30", "peak40", "rms30")
 #: the gate (module doc)
@@ -80,6 +91,8 @@ GATE_REF = 0.005
 GATE_SEEN, GATE_AMP = 0.95, 0.85
 GATE_RULE = 0.015
 GATE_LAM = 0.01
+#: at the paper's full size: operator pairs, and tv's time over one NER float32 of the same process
+GATE_FULL_PAIRS, GATE_FULL_NER = 75, 150
 #: a thin segment is seen when its centre line's CNR over the background around it is at least this
 SEEN_CNR = 3.0
 #: rows where the vessel tree's thin segments and amplitude are gated: (mask %, noise)
@@ -103,6 +116,9 @@ def load_case(name: str) -> dict:
     vessel tree, its ``centre_lines`` and ``radius_voxels``."""
     if name == "paper":
         return _paper_case()
+    if name.startswith("family"):
+        family = _family()
+        return family.family_case(*family.member(name))
     import h5py
 
     with h5py.File(SHARED / "data" / FILES[name], "r") as f:
@@ -131,6 +147,38 @@ def _paper_case() -> dict:
     clean = ball_alines(pos, case["balls"], DT, n_t, C).T.reshape(n_t, n, n)
     return dict(name="paper", clean=clean, p0=None, balls=case["balls"], dt=DT, dx=PITCH, dz=None, c=C,
                 poi_depth=3.6e-3 * n / 226)
+
+
+def _family():
+    """The module `tv_family` beside this one."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import tv_family
+
+    return tv_family
+
+
+def family_members(groups) -> list[str]:
+    """The members named by ``groups`` (``family``: every half-size member, ``family-full``: every
+    full-size one, or a member's name), in the family's order, each once."""
+    members = _family().MEMBERS
+    wanted = {m for g in groups for m in members
+              if m == g or (g == "family" and not m.startswith("family-full")) or (g == "family-full" and m.startswith(g))}
+    return [m for m in members if m in wanted]
+
+
+def ner_seconds(data: np.ndarray, dx: float, dt: float, c: float, repeat: int = 2) -> float:
+    """Seconds of one NER float32 of the dense record ``data`` at NER's own default grid (best of
+    ``repeat``, after a small run that compiles its kernels): the unit of tv's time."""
+    from fpscan.service.recon import reconstruct_grid
+
+    data = np.asarray(data, np.float32)
+    reconstruct_grid(data[(slice(32),) + (slice(16),) * (data.ndim - 1)], dx, dt, c, dtype=np.float32)
+    best = math.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        reconstruct_grid(data, dx, dt, c, dtype=np.float32)
+        best = min(best, time.perf_counter() - t)
+    return best
 
 
 def make_mask(case: dict, percent: int):
@@ -187,7 +235,6 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
     the CI subset's row; ``seed``: the noise's; ``probe``: the probes' options, `PROBE_DEFAULTS`
     and the module doc)."""
-    from fpscan.physics import ball_p0
     from fpscan.physics.axes import centred_axis
     from fpscan.service.metrics import correlation_coefficient
     from fpscan.service.pipeline import reconstruct
@@ -197,7 +244,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
 
     probe = {**PROBE_DEFAULTS, **(probe or {})}
     case = load_case(name) if case is None else case
-    data = noisy(case["clean"], noise, seed)
+    data = noisy(case["clean"], noise, seed + case.get("seed", 0))  # a family member's own seed
     mask = make_mask(case, percent)
     dt, dx, c = case["dt"], case["dx"], case["c"]
     two_d = data.ndim == 2
@@ -215,10 +262,8 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol)
     tv_s = time.perf_counter() - t
     p = tv.params
-    if case["p0"] is None:
-        truth = ball_p0(case["balls"], tv.z, tv.x, tv.y, supersample=2)
-    else:
-        truth = case["p0"]
+    balls_p0 = _family().balls_p0  # ball_p0 of the balls, in time for a vessel's hundreds
+    truth = balls_p0(case["balls"], tv.z, tv.x, tv.y, supersample=2) if case["p0"] is None else case["p0"]
     dense = GridDataset(data=data, dt=dt, sound_speed=c, dx=dx)
     ner_opts = grid_opts or {"dz": float(tv.z[1] - tv.z[0]), "n_z": len(tv.z)}
     ner = reconstruct_grid(dense.data, dx, dt, c, dtype=np.float32, **ner_opts).p0
@@ -227,7 +272,10 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                amp=amplitude(tv.p0, truth), band=p["band"], band_reason=p["band_reason"], grid=list(tv.p0.shape),
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
                extent=p["extent_reason"], pairs=p["operator_pairs"], iterations=p["iterations"],
-               converged=p["converged"], lam=p["lam"], lam_factor=p["lam_factor"], tv_s=tv_s, **probe)
+               converged=p["converged"], stop=p.get("stop_reason"), lam=p["lam"], lam_factor=p["lam_factor"],
+               tv_s=tv_s, ner_s=ner_seconds(data, dx, dt, c), **probe)
+    if "scale" in case:  # a family member: its size and objects
+        row.update(scale=case["scale"], member_seed=case["seed"], phantom=_family().describe(case))
     lines = case.get("centre_lines")
     if lines is not None:
         row["seen"], row["thin"] = thin_segments_seen(tv.p0, lines, case["radius_voxels"])
@@ -237,7 +285,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                                  meta={BANDWIDTH_KEY: 0.5 / dt})  # the record's Nyquist frequency declared
         ref_lam = {"lam": p["lam"]} if probe["ref_lam"] == "tv" else {}
         ref = reconstruct(full_band, "tv", dtype="float32", whole_record=True, **grid_opts, **tol, **ref_lam)
-        ref_truth = truth if case["p0"] is not None else ball_p0(case["balls"], ref.z, ref.x, ref.y, supersample=2)
+        ref_truth = truth if case["p0"] is not None else balls_p0(case["balls"], ref.z, ref.x, ref.y, supersample=2)
         row.update(ref=correlation_coefficient(ref.p0, ref_truth), ref_pairs=ref.params["operator_pairs"],
                    ref_converged=ref.params["converged"], ref_lam_value=ref.params["lam"],
                    ref_iterations=ref.params["iterations"], ref_grid=list(ref.p0.shape))
@@ -262,6 +310,13 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
 def gate(row: dict) -> list[str]:
     """The gate's failures on one row (empty: it passes)."""
     fails = []
+    if not row["converged"]:
+        fails.append(f"not converged ({row.get('stop', 'stopped')} after {row['iterations']} iterations)")
+    if row.get("scale") == 1:  # the paper's full size
+        if row["pairs"] > GATE_FULL_PAIRS:
+            fails.append(f"{row['pairs']:g} operator pairs > {GATE_FULL_PAIRS}")
+        if row["tv_s"] / row["ner_s"] > GATE_FULL_NER:
+            fails.append(f"tv {row['tv_s'] / row['ner_s']:.0f} x NER > {GATE_FULL_NER}")
     if "ref" in row and row["tv"] < row["ref"] - GATE_REF:
         fails.append(f"tv {row['tv']:.4f} < ref {row['ref']:.4f} - {GATE_REF}")
     if row.get("ref", math.inf) >= row["ner"] and row["tv"] < row["ner"]:  # without a ref run: always
@@ -292,15 +347,16 @@ def format_row(r: dict) -> str:
         if "sweep_seen" in r:  # the vessel tree's thin segments seen at each λ
             rule += " (seen " + " ".join(f"{r['sweep_seen'][k]:.0%}" for k in sorted(r["sweep_seen"], key=int)) + ")"
     fails = gate(r)
+    ratio = f" ({r['tv_s'] / r['ner_s']:.0f}x NER)" if "ner_s" in r else ""
     return (f"| {r['case']} | {r['mask']} % ({r['points']}) | {r['noise']} | {r['tv']:.4f} | {ref} | "
             f"{r['ner']:.4f} | {seen} | {r['amp']:.2f} | {band} ({r['band_reason']}) | "
             f"{' x '.join(map(str, r['grid']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} "
             f"({r['extent']}) | {r['pairs']:g} ({r.get('ref_pairs', '-')}) | {r['iterations']} | {r['converged']} | "
-            f"{r['lam_factor']:.2f} | {r['tv_s']:.1f}{rule} | {'pass' if not fails else '; '.join(fails)} |")
+            f"{r['lam_factor']:.2f} | {r['tv_s']:.1f}{ratio}{rule} | {'pass' if not fails else '; '.join(fails)} |")
 
 
 HEADER = ("| case | mask | noise | tv CC | ref CC | NER CC | thin seen (ref, NER) | amp | band | tv grid | record kept | "
-          "pairs (ref) | iterations | converged | λ / noise | tv s | gate |")
+          "pairs (ref) | iterations | converged | λ / noise | tv s (/ NER) | gate |")
 
 
 def _worker(args: tuple) -> dict:
@@ -310,7 +366,8 @@ def _worker(args: tuple) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + FAMILY_GROUPS + _family().MEMBERS,
+                    metavar="CASE", help=f"{', '.join(CASES + FAMILY_GROUPS)} or a family member by name (family-07)")
     ap.add_argument("--masks", nargs="+", type=int, default=list(MASKS))
     ap.add_argument("--noise", nargs="+", default=list(NOISE))
     ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve at tv's λ per row (slow)")
@@ -330,8 +387,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     # every case first at the strongest noise and the sparser mask: the rows that decide the gate soonest
     probe = {"tol": args.tol, "declared": args.declared, "ref_lam": args.ref_lam, "rule_iterations": args.rule_iterations}
-    todo = [(c, m, n, args.rule, args.sweep, args.seed, not args.no_reference, probe)
-            for n in args.noise for m in args.masks for c in args.cases]
+    options = (args.rule, args.sweep, args.seed, not args.no_reference, probe)
+    todo = [(c, m, n, *options) for n in args.noise for m in args.masks for c in args.cases if c in CASES]
+    family = _family()
+    for name in family_members(args.cases):  # each member one row, at its own mask and noise
+        mask, noise = family.member_scan(*family.member(name))
+        if mask in args.masks and noise in args.noise:
+            todo.append((name, mask, noise, *options))
     done = []
     if args.json and args.json.is_file():  # rows measured before (the same options): printed, not run again
         asked = {t[:3] for t in todo}

@@ -97,7 +97,7 @@ def ball_alines(
     dt: float,
     n_t: int,
     c: float = C_DEFAULT,
-    t0: float = 0.0,
+    t0: float | np.ndarray = 0.0,
 ) -> np.ndarray:
     """A-lines of uniform balls at point sensors on the plane z = 0.
 
@@ -106,7 +106,10 @@ def ball_alines(
     positions : (n_points, 2) array of sensor (x, y) in m ((n_points, 1): y = 0).
     balls : one `Ball` or a sequence of them.
     dt : sample interval in s (> 0).  n_t : samples per A-line (>= 1).
-    c : sound speed in m/s (> 0).  t0 : time of sample 0 in s (t_n = t0 + n dt).
+    c : sound speed in m/s (> 0).
+    t0 : time of sample 0 in s (t_n = t0 + n dt): one for every point, or an ``(n_points,)`` array,
+        one per point (a window of n_t samples around each point's arrival, so that a ball's few
+        nonzero samples cost n_t, not the whole record).
 
     Returns
     -------
@@ -116,7 +119,8 @@ def ball_alines(
 
     Raises
     ------
-    ValueError for non-finite or mis-shaped positions, dt/c <= 0, n_t < 1, or no balls.
+    ValueError for non-finite or mis-shaped positions, dt/c <= 0, n_t < 1, no balls, or a non-finite
+    ``t0`` or one of neither shape.
 
     References
     ----------
@@ -144,9 +148,12 @@ def ball_alines(
         raise ValueError(f"c must be a finite number > 0 m/s, got {c}")
     if int(n_t) != n_t or n_t < 1:
         raise ValueError(f"n_t must be an integer >= 1, got {n_t}")
-    if not np.isfinite(t0):
+    start = np.asarray(t0, dtype=np.float64)
+    if start.shape not in ((), (len(pos),)):
+        raise ValueError(f"t0 must be a number or have shape ({len(pos)},), got {start.shape}")
+    if not np.all(np.isfinite(start)):
         raise ValueError("t0 must be finite")
-    t = t0 + dt * np.arange(int(n_t))
+    t = (start[:, None] if start.ndim else start) + dt * np.arange(int(n_t))
     out = np.zeros((len(pos), int(n_t)))
     for b in balls:
         r = np.sqrt((pos[:, 0] - b.x) ** 2 + (pos[:, 1] - b.y) ** 2 + b.z**2)[:, None]
