@@ -614,9 +614,10 @@ MEMORY_CALIBRATION = 1.05
 
 def warm_up(dtypes: Sequence[str]) -> None:
     """Compile (or load from numba's cache) the model-based operator's and solver's kernels
-    (``fpscan.service.recon.operator``; ``fpscan.service.recon.tv``'s ``prox``, ``stores``, ``fista`` and
-    ``preconditioner``; ``fpscan.physics.forward``; the first imports pylops and pyproximal:
-    seconds) on a 4 x 6 x 6 image in each precision.
+    (``fpscan.service.recon.operator``, on a grid and at points, its A-lines as given and in the
+    working precision; ``fpscan.physics.array_kernels``; ``fpscan.service.recon.tv``'s ``prox``,
+    ``stores``, ``fista`` and ``preconditioner``; ``fpscan.physics.forward``; the first imports
+    pylops and pyproximal: seconds) on a 4 x 6 x 6 image in each precision.
 
     Parameters
     ----------
