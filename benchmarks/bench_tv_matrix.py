@@ -41,8 +41,11 @@ Per row:
   ref's and NER's images;
   **amp**: the least-squares amplitude of tv's image on the structures (p0 > 10 % of its max);
 - tv's band and why, its image grid, the record kept, operator pairs, iterations, λ / image noise,
-  converged;
-- with ``--rule``: tv's CC after 300 iterations (``--rule-iterations``) at its own λ and grid (``tol`` 0);
+  converged; in the JSON rows, tv's progress events (`EVENT_FIELDS`: its ETA replays from them);
+- with ``--rule``: tv's CC after 300 iterations (``--rule-iterations``) at its own λ and grid (``tol`` 0),
+  and in the JSON rows the trace of that run (per iteration: time, J, the image's change, the rule's
+  value, CC; `TRACE_FIELDS`: any stopping rule is judged on it from the one run, as the run to
+  ``tol`` 0 takes the default run's iterates up to its stop);
 - with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule, and
   on the vessel tree the thin segments seen at each.
 
@@ -230,6 +233,58 @@ def amplitude(image: np.ndarray, p0: np.ndarray) -> float:
     return float(np.dot(image[on], ref) / np.dot(ref, ref))
 
 
+#: a progress event of the default run (``row["events"]``): seconds since the call, the fraction, the
+#: stage's text and, in an iteration stage, its iteration, limit, rule value, tolerance and the
+#: iteration from which the rule can stop the run (`fpscan.service.progress.IterationStage`)
+EVENT_FIELDS = ("s", "fraction", "stage", "k", "n", "rule", "tol", "armed_at")
+#: an iteration of the traced 300-iteration run (``row["trace"]``): its iteration, seconds since the call
+#: without the trace's own work, J, the image's relative change ‖x_k − x_{k−1}‖ / ‖x_k‖, the stopping
+#: rule's value (its window's largest change) and the CC with p0
+TRACE_FIELDS = ("k", "s", "J", "change", "rule", "cc")
+
+
+def progress_event(seconds: float, fraction: float, stage: str) -> list:
+    """One `EVENT_FIELDS` record of a progress report."""
+    return [seconds, fraction, str(stage), *(getattr(stage, f, None) for f in ("k", "n", "rule", "tol", "armed_at"))]
+
+
+def traced_run(scan, c: float, truth: np.ndarray, **options):
+    """tv on ``scan`` with ``options`` as `fpscan.service.pipeline.reconstruct` runs it (the method's own
+    arguments, `fpscan.service.recon.methods.tv.problem_arguments`), and per iteration its
+    `TRACE_FIELDS` (the CC with ``truth``, on tv's grid): (the reconstruction, the trace). Each
+    iteration's image is the one the run would return had it stopped there, so that any stopping
+    rule on these figures is judged from the one run."""
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.pipeline import method_options
+    from fpscan.service.recon.methods.tv import problem_arguments
+    from fpscan.service.recon.tv import reconstruct_tv
+
+    opts = method_options("tv", dtype="float32", **options)
+    trace: list[list] = []
+    rule: dict[int, float | None] = {}
+    last: list[np.ndarray] = []
+    extra = [0.0]  # the trace's own seconds, left out of its times
+    t = time.perf_counter()
+
+    def callback(k: int, x: np.ndarray, J: float) -> None:
+        t0 = time.perf_counter()
+        x64 = np.asarray(x, np.float64)
+        change = float(np.linalg.norm(x64 - last[0]) / np.linalg.norm(x64)) if last else math.nan
+        last[:] = [x64.copy()]
+        trace.append([k, t0 - t - extra[0], J, change, None, correlation_coefficient(x64, truth)])
+        extra[0] += time.perf_counter() - t0
+
+    def progress(fraction: float, stage: str) -> None:
+        if getattr(stage, "k", None) is not None:
+            rule[stage.k] = stage.rule
+
+    result = reconstruct_tv(**problem_arguments(scan, c, opts), max_iter=opts.max_iter, tol=opts.tol,
+                            callback=callback, progress=progress)
+    for row in trace:
+        row[4] = rule.get(row[0])
+    return result, trace
+
+
 def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict | None = None,
             sweep: bool = False, reference: bool = True, seed: int = 0, probe: dict | None = None) -> dict:
     """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
@@ -259,7 +314,9 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
     tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
     t = time.perf_counter()
-    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol)
+    events: list[list] = []
+    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol,
+                     progress=lambda fraction, stage: events.append(progress_event(time.perf_counter() - t, fraction, stage)))
     tv_s = time.perf_counter() - t
     p = tv.params
     balls_p0 = _family().balls_p0  # ball_p0 of the balls, in time for a vessel's hundreds
@@ -273,7 +330,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
                extent=p["extent_reason"], pairs=p["operator_pairs"], iterations=p["iterations"],
                converged=p["converged"], stop=p.get("stop_reason"), lam=p["lam"], lam_factor=p["lam_factor"],
-               tv_s=tv_s, ner_s=ner_seconds(data, dx, dt, c), **probe)
+               tv_s=tv_s, ner_s=ner_seconds(data, dx, dt, c), events=events, **probe)
     if "scale" in case:  # a family member: its size and objects
         row.update(scale=case["scale"], member_seed=case["seed"], phantom=_family().describe(case))
     lines = case.get("centre_lines")
@@ -292,8 +349,8 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         if lines is not None:
             row["ref_seen"], _ = thin_segments_seen(ref.p0, lines, case["radius_voxels"])
     if rule:
-        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], max_iter=probe["rule_iterations"], tol=0.0,
-                           **grid_opts)
+        long, row["trace"] = traced_run(scan, c, truth, lam=p["lam"], max_iter=probe["rule_iterations"], tol=0.0,
+                                        **grid_opts)
         row["cc300"] = correlation_coefficient(long.p0, truth)  # named for the default's 300 iterations
     if sweep:  # the automatic λ against λ x 2^k, k = -3..3, each to the stopping rule
         row["sweep"], seen = {}, {}
