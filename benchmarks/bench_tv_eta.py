@@ -6,7 +6,8 @@ followed twice while it runs: on its event stream (``fpscan.Client.wait``: each 
 ``elapsed_s`` and ``eta_s``, the worker's clock) and by ``fpscan jobs wait`` (its progress lines
 once a second, ``FPSCAN_PROGRESS_PERIOD=1``, each read with the time it came). Cases, masks and
 noise as `bench_tv_matrix` makes them (``$FPSCAN_SHARED/data``: ``vessels`` the k-Wave vessel
-tree, ``balls`` the balls and yarn, ``points`` the 2-D point targets; MASK ``100`` the dense
+tree, ``balls`` the balls and yarn, ``points`` the 2-D point targets, or a member of the phantom
+family, ``family-06``, at its own grid, noise seed and point of interest; MASK ``100`` the dense
 record, else the equi-steradian / equiangular mask of that percentage, sent as a plan that samples
 the dense upload; NOISE ``clean``, ``peak20``, ``rms30``, ...); tv's grid is the phantom's, its
 depth cut to ``--n-z`` samples on the 3-D cases (the vessel tree lies above sample 37).
@@ -52,14 +53,18 @@ def case_data(name: str, noise: str) -> dict:
     from bench_tv_matrix import load_case, noisy
 
     case = load_case(name)
-    case["data"] = case["clean"] if noise == "clean" else noisy(case["clean"], noise, 0)
+    # a family member's noise is seeded by its own seed, as in its gate row
+    case["data"] = case["clean"] if noise == "clean" else noisy(case["clean"], noise, case.get("seed", 0))
     return case
 
 
 def plan_body(case: dict, percent: int) -> dict:
     """The plan of `bench_tv_matrix.make_mask`'s mask, as the server takes it."""
-    p0 = np.maximum(case["p0"], 0)
-    depth = float(np.sum(p0.sum(axis=tuple(range(1, p0.ndim))) * np.arange(p0.shape[0]))) / float(p0.sum()) * case["dz"]
+    if case.get("poi_depth") is not None:  # a family member: its objects' centroid
+        depth = case["poi_depth"]
+    else:
+        p0 = np.maximum(case["p0"], 0)
+        depth = float(np.sum(p0.sum(axis=tuple(range(1, p0.ndim))) * np.arange(p0.shape[0]))) / float(p0.sum()) * case["dz"]
     shape = case["data"].shape[1:]
     acquisition = {"n_t": int(case["data"].shape[0]), "dt": case["dt"], "sound_speed": case["c"]}
     if len(shape) == 1:
@@ -141,9 +146,11 @@ def run(api, url: str, spec: str, uploads: dict, n_z: int, folder: Path) -> dict
             fields["dy"] = case["dx"]
         uploads[key] = (case, api.upload_dataset(path, "npy", **fields))
     case, dataset_id = uploads[key]
-    depth = case["p0"].shape[0] if case["data"].ndim == 2 else min(n_z, case["p0"].shape[0])
     plan_id = None if int(mask) == 100 else str(api.create_plan(plan_body(case, int(mask))).id)
-    params = {"tol": float(tol), "dtype": "float32", "dz": case["dz"], "n_z": depth}
+    params: dict = {"tol": float(tol), "dtype": "float32"}
+    if case["p0"] is not None:  # the k-Wave phantom's grid; a family member: tv's own
+        depth = case["p0"].shape[0] if case["data"].ndim == 2 else min(n_z, case["p0"].shape[0])
+        params.update(dz=case["dz"], n_z=depth)
     lines: list[tuple[float, str]] = []
     events: list[dict] = []
     t0 = time.monotonic()
@@ -162,8 +169,14 @@ def run(api, url: str, spec: str, uploads: dict, n_z: int, folder: Path) -> dict
     api.download_volume(job_id, volume)
     import fpscan
 
-    image = fpscan.read_result(volume).p0
-    truth = case["p0"][:depth]
+    result = fpscan.read_result(volume)
+    image = result.p0
+    if case["p0"] is not None:
+        truth = case["p0"][:depth]
+    else:  # the family's balls on tv's grid (`tv_family.balls_p0`)
+        import tv_family
+
+        truth = tv_family.balls_p0(case["balls"], result.z, result.x, result.y, supersample=2)
     return dict(run=spec, end=end, events=events, lines=lines, server=predictions(server_shown(events), end),
                 cli_end=cli_end, cli=predictions(cli_shown(lines, label), cli_end),
                 iterations=used["iterations"], K=used["continuation_iterations"], stop=used["stop_reason"],

@@ -48,6 +48,7 @@ from typing import Any, overload
 
 __all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "Forward", "forward", "DEFAULT_STAGE", "IterationStage",
            "parse_iteration", "iteration_fields", "stage_of", "describe_iteration", "SETUP_STAGES", "stage_kind", "LOW_S", "Countdown", "Eta",
+           "NEAR_TOL", "PAST_TYPICAL", "PAST_SHARE",
            "Shown", "outcome"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
@@ -336,6 +337,11 @@ class IterationStage(str):
         continuation's K iterations + the rule's window of 3); None (default): unknown, or the
         rule never stops it (a tolerance of 0). The iterations before it are certain:
         :class:`Eta` counts at least those.
+    typical_stop : int, optional
+        The iteration at which the method's runs typically stop at this tolerance, a figure the
+        method measured on its own runs (tv: `fpscan.service.recon.tv.stopping.typical_stop`);
+        :class:`Eta` takes it while the rule's value is still far from the tolerance, where its
+        fall says little of the stop. None (default): not known.
     text : str, optional
         The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
         its suffix.
@@ -353,6 +359,8 @@ class IterationStage(str):
     waits_for : str
         As given.
     armed_at : int or None
+        As given.
+    typical_stop : int or None
         As given.
 
     Examples
@@ -372,22 +380,24 @@ class IterationStage(str):
     armed: bool
     waits_for: str
     armed_at: int | None
+    typical_stop: int | None
 
     def __new__(cls, k: int, n: int, rule: float | None = None, tol: float | None = None, *,
                 rule_name: str = "image change", text: str | None = None, armed: bool = True,
-                waits_for: str = "", armed_at: int | None = None) -> IterationStage:
+                waits_for: str = "", armed_at: int | None = None, typical_stop: int | None = None) -> IterationStage:
         self = super().__new__(cls, text if text is not None else f"iteration {int(k)}/{int(n)}")
         self.k, self.n = int(k), int(n)
         self.rule = float(rule) if rule is not None and math.isfinite(float(rule)) else None
         self.tol = float(tol) if tol is not None and math.isfinite(float(tol)) else None
         self.rule_name, self.armed, self.waits_for = rule_name, bool(armed), str(waits_for)
         self.armed_at = None if armed_at is None else int(armed_at)
+        self.typical_stop = None if typical_stop is None else int(typical_stop)
         return self
 
     def _with(self, **changes: Any) -> IterationStage:
         """The same stage with ``changes`` to its keyword fields."""
         keywords = {"rule_name": self.rule_name, "text": str(self), "armed": self.armed, "waits_for": self.waits_for,
-                    "armed_at": self.armed_at, **changes}
+                    "armed_at": self.armed_at, "typical_stop": self.typical_stop, **changes}
         return IterationStage(self.k, self.n, self.rule, self.tol, **keywords)
 
     def __add__(self, other: str) -> IterationStage:
@@ -396,7 +406,7 @@ class IterationStage(str):
     def __getnewargs_ex__(self) -> tuple[tuple, dict]:
         return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self),
                                                        "armed": self.armed, "waits_for": self.waits_for,
-                                                       "armed_at": self.armed_at}
+                                                       "armed_at": self.armed_at, "typical_stop": self.typical_stop}
 
     def waiting_for(self, words: str) -> IterationStage:
         """The same stage with ``waits_for`` = ``words`` (what its method declares its rule waits
@@ -433,9 +443,10 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
     ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet),
-    ``stop_armed_at`` (the first iteration at which it can, where known in advance) and, while
-    it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's words:
-    tv's ``"λ has settled"``); ``{}`` for any other stage. :func:`stage_of` reads them back.
+    ``stop_armed_at`` (the first iteration at which it can, where known in advance),
+    ``stop_typical_at`` (the iteration at which the method's runs typically stop, where it says)
+    and, while it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's
+    words: tv's ``"λ has settled"``); ``{}`` for any other stage. :func:`stage_of` reads them back.
 
     Parameters
     ----------
@@ -454,6 +465,8 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
                               "stop_value": it.rule, "stop_tol": it.tol, "stop_armed": it.armed}
     if it.armed_at is not None:
         fields["stop_armed_at"] = it.armed_at
+    if it.typical_stop is not None:
+        fields["stop_typical_at"] = it.typical_stop
     if not it.armed and it.waits_for:
         fields["stop_waits_for"] = it.waits_for
     return fields
@@ -490,7 +503,7 @@ def stage_of(progress: Mapping[str, Any]) -> Any:
     return IterationStage(int(k), int(n), progress.get("stop_value"), progress.get("stop_tol"),
                           rule_name=progress.get("stop_rule") or "image change", text=str(stage),
                           armed=bool(progress.get("stop_armed", True)), waits_for=progress.get("stop_waits_for") or "",
-                          armed_at=progress.get("stop_armed_at"))
+                          armed_at=progress.get("stop_armed_at"), typical_stop=progress.get("stop_typical_at"))
 
 
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
@@ -636,10 +649,17 @@ class Eta:
     - In an iteration stage (:func:`parse_iteration`): the iterations expected until the
       stopping rule ends the work × the measured time per iteration (an exponential moving
       average, weight ``smoothing``, of the time between iteration reports, shown once
-      ``settle`` intervals are measured: the first iteration carries set-up work). The
-      iterations expected come from the rate at which the rule's value falls: a straight
-      line fitted to log(value) over the last iterations (a geometric fall, as a
-      convergent solver's image change shows), extended to the tolerance; where the value
+      ``settle`` intervals are measured: the first iteration carries set-up work). Once the
+      rule can stop the work and its value is within `NEAR_TOL` × the tolerance, the
+      iterations expected come from the rate at which the value falls: a straight line fitted
+      to log(value) over the last iterations (a geometric fall, as a convergent solver's
+      image change shows near its end), extended to the tolerance. Farther from it, or while
+      the rule cannot stop the work yet, or where the value does not fall, the fall says little
+      of the stop (tv's image change falls fast while λ falls, then stalls for tens of
+      iterations before it falls again), so where the stage gives the method's typical stop
+      (``typical_stop``, a figure the method measured on its own runs) they are the iterations
+      to it, but at least `PAST_SHARE` of those run (and `PAST_TYPICAL`); near the tolerance,
+      the fitted fall's where it comes sooner. Without a typical stop, where the value
       does not fall (or no value or tolerance is known) they are the n − k left to the
       iteration limit. They are never fewer than the iterations before the rule can stop the
       work (``armed_at`` − k: tv's λ continuation and the rule's window, known in advance; until
@@ -800,7 +820,18 @@ class Eta:
             certain = min(max(it.armed_at - it.k, 0), cap)
         fitted = self._to_rule(it)
         left: float
-        if fitted is None and certain:  # no fall measured yet: at least to the first stop the rule can make
+        far = not it.armed or it.rule is None or it.tol is None or it.rule >= NEAR_TOL * it.tol
+        if it.typical_stop is not None and it.tol is not None and it.tol > 0:
+            # the method's typical stop, and once past it a few iterations more: the rule's fall says
+            # little of the stop while its value is far from the tolerance (tv's image change stalls,
+            # then falls); near it, the fall extended to the tolerance where that comes sooner (a fit
+            # over a stall and a fall is too shallow); never fewer than the certain iterations
+            left = max(it.typical_stop - it.k, max(PAST_TYPICAL, PAST_SHARE * it.k) if it.armed else 0)
+            if not far and fitted is not None:
+                left = min(left, fitted)
+            left = min(max(left, certain), cap)
+            self.basis = "iteration limit" if left >= cap else "stopping rule"
+        elif fitted is None and certain:  # no fall measured yet: at least to the first stop the rule can make
             left, self.basis = certain, "earliest stop"
         else:
             left = cap if fitted is None else min(max(fitted, certain), cap)
@@ -830,6 +861,15 @@ class Eta:
 
 #: the fewest values the ETA's fit of the rule's fall takes
 _FIT_MIN = 3
+#: the ETA extends the rule's fall to the tolerance once the value is within NEAR_TOL × tol of it,
+#: and before that (where the stage has one) takes the method's typical stop (`Eta`)
+NEAR_TOL = 2.0
+#: with a typical stop, the ETA counts at least PAST_TYPICAL more iterations and PAST_SHARE of those
+#: run (a run that has lasted long is likely to last longer), which passes the typical stop from
+#: k = typical / (1 + PAST_SHARE) on. NEAR_TOL and PAST_SHARE were chosen on tv's k-Wave rows and
+#: judged on the phantom family (docs/results.md, "tv's ETA against the actual end")
+PAST_TYPICAL = 5
+PAST_SHARE = 0.5
 #: iterations of the rule's value the ETA's fit of its fall looks back over
 _FIT = 8
 

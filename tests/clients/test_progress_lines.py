@@ -268,6 +268,50 @@ def test_eta_counts_the_iterations_before_the_rule_can_stop():
             assert abs(now[0] + e - end) <= 0.05 * end, (k, e, now[0] + e, end)
 
 
+def test_eta_takes_the_typical_stop_while_the_rule_is_far_from_its_tolerance():
+    """A run whose rule behaves as tv's image change does on a sparse scan: it falls fast while λ
+    falls (to iteration 12), stalls at 4× the tolerance until iteration 40, then falls tenfold every
+    8 iterations and the run stops at iteration 47 (the oracle: the first iteration whose window of
+    3 values is below the tolerance). 1 s per iteration. Given the method's typical stop (iteration
+    48, ``typical_stop``), each estimate while the value is far from the tolerance is the one the
+    documented rule gives, max(typical, (1 + `PAST_SHARE`) k) (the typical stop, and once past it a
+    share of the iterations run), and up to iteration 32 the end it predicts is within 5 % of the
+    actual end; without it, the fall fitted while λ falls puts the end at the rule's first possible
+    stop, more than half the run early."""
+    from fpscan.service.progress import PAST_SHARE, Eta, IterationStage
+
+    n, tol, armed_at, typical = 100, 5e-3, 15, 48
+
+    def value(k: int) -> float:  # the rule's value: a window's largest change
+        if k <= 12:
+            return 0.3 * (0.02 / 0.3) ** (k / 12)
+        if k <= 40:
+            return 4 * tol
+        return 4 * tol * 10 ** (-(k - 40) / 8)
+
+    stop = next(k for k in range(armed_at, n) if all(value(j) < tol for j in range(k - 2, k + 1)))
+    assert stop == 47
+
+    def ends(with_typical: bool) -> dict[int, float]:
+        now = [0.0]
+        eta = Eta(clock=lambda: now[0])
+        out = {}
+        for k in range(1, stop):
+            now[0] = float(k)
+            e = eta(k / n, IterationStage(k, n, rule=value(k), tol=tol, armed=k >= armed_at, armed_at=armed_at,
+                                          typical_stop=typical if with_typical else None))
+            if e is not None:  # (a figure under 5 s is hidden after 5 s)
+                out[k] = now[0] + e
+        return out
+
+    typical_ends = ends(True)
+    for k in range(3, 41):  # the value far from the tolerance: the documented rule
+        assert typical_ends[k] == pytest.approx(max(typical, (1 + PAST_SHARE) * k)), (k, typical_ends[k])
+    assert all(abs(typical_ends[k] - stop) <= 0.05 * stop for k in range(3, 33)), typical_ends
+    plain_ends = ends(False)  # the fall's fit alone
+    assert max(abs(plain_ends[k] - stop) / stop for k in range(3, 33) if k in plain_ends) > 0.5, plain_ends
+
+
 def test_an_eta_under_5_s_is_never_shown_for_5_s():
     """A rule that keeps saying it is about to stop (its value flat just above the tolerance) while
     iterations of 1.5 s go on: the estimate stays about one iteration; what is shown (each report's

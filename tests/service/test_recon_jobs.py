@@ -272,6 +272,7 @@ def test_tv_job_progress_only_moves_forward_and_says_when_the_rule_can_stop(shar
     figure of its stretch (the worker's clock, ``elapsed_s``)."""
     from fpscan.clients.cli.common import ProgressBar
     from fpscan.physics.balls import Ball, ball_alines
+    from fpscan.service.recon.tv.stopping import typical_stop
     from tests.waits import HANG_S
 
     n, n_t, max_iter = 20, 160, 40
@@ -306,6 +307,7 @@ def test_tv_job_progress_only_moves_forward_and_says_when_the_rule_can_stop(shar
         assert bool(continuing) == (k <= K) and (k > K or re.fullmatch(rf"iteration {k}/{max_iter}", p["stage"])
                                                   is None), p
         assert p["stop_armed_at"] == K + 3 and p["stop_armed"] == (k >= K + 3), p
+        assert p["stop_typical_at"] == typical_stop(used["tol"], K + 3) >= K + 3, p  # what its ETA takes while far
         if p.get("iterations_left_max") is not None:  # the bound holds
             assert last <= k + p["iterations_left_max"], (last, p)
     low_since = None

@@ -13,11 +13,46 @@ import math
 from collections import deque
 
 from fpscan.service.progress import IterationStage
+from fpscan.service.recon.limits import DEFAULT_TOL
 
-__all__ = ["WINDOW", "StoppingRule"]
+__all__ = ["WINDOW", "TYPICAL_STOP", "TYPICAL_POWER", "typical_stop", "StoppingRule"]
 
 #: the stopping rule's window of iterations
 WINDOW = 3
+#: the iteration at which tv's runs typically stop at the default ``tol`` (`typical_stop`), and how it
+#: grows as ``tol`` falls: TYPICAL_STOP × (DEFAULT_TOL / tol) ** TYPICAL_POWER (measured on k-Wave's
+#: scans: docs/tv-measurements.md, "The waiting phase, and what `tol` changes")
+TYPICAL_STOP = 50
+TYPICAL_POWER = 0.25
+
+
+def typical_stop(tol: float, armed_at: int) -> int | None:
+    """The iteration at which tv's runs typically stop at ``tol`` (`TYPICAL_STOP` at the default,
+    × (default / ``tol``) ** `TYPICAL_POWER`), never before ``armed_at``, the first iteration the
+    rule can stop at; None at ``tol`` 0 (the rule never stops the run). What the progress's ETA
+    takes while the image change is far from ``tol`` (`fpscan.service.progress.Eta`).
+
+    Parameters
+    ----------
+    tol : float
+        The stopping rule's threshold (>= 0).
+    armed_at : int
+        The first iteration at which the rule can stop the run.
+
+    Returns
+    -------
+    int or None
+        The iteration.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.stopping import typical_stop
+    >>> typical_stop(0.005, 10), typical_stop(0.0025, 10), typical_stop(0.005, 53), typical_stop(0.0, 10)
+    (50, 59, 53, None)
+    """
+    if not tol > 0:
+        return None
+    return max(int(armed_at), round(TYPICAL_STOP * (DEFAULT_TOL / tol) ** TYPICAL_POWER))
 
 
 class StoppingRule:
@@ -96,7 +131,8 @@ class StoppingRule:
         waiting = not self.at_lambda(k) and self.tol > 0
         text = f"iteration {k}/{self.max_iter} (λ continuation {k}/{self.falling})" if k <= self.falling else None
         return IterationStage(k, self.max_iter, max(self.steps), self.tol, armed=not waiting, text=text,
-                              armed_at=self.armed_at if self.tol > 0 else None)
+                              armed_at=self.armed_at if self.tol > 0 else None,
+                              typical_stop=typical_stop(self.tol, self.armed_at))
 
     def verdict(self, k: int, elapsed: float) -> str | None:
         if 0.0 <= self.change < self.tol and self.at_lambda(k):
