@@ -5,7 +5,9 @@ test, `fpscan.service.recon.tv.fista.moves`); the run has converged when it was 
 each of the last `WINDOW` = 3 iterations at λ itself (none of the λ continuation's,
 `fpscan.service.recon.tv.lam.Continuation`). Otherwise it stops at ``max_iter`` iterations
 ("iterations") or at the time limit ("time limit"). Why the rule is on the image, not on
-the objective: docs/tv-measurements.md, "Stopping rule".
+the objective: docs/tv-measurements.md, "Stopping rule". Each iteration's progress stage carries
+the rule's value, its first possible stop and tv's typical stop (`typical_stop`), from which the
+progress's ETA counts (`fpscan.service.progress.Eta`).
 """
 from __future__ import annotations
 
