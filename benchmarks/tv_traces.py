@@ -65,6 +65,26 @@ def window_rule(tol: float, window: int = 3) -> Callable[[dict], int | None]:
     return stop
 
 
+def creeping_rule(tol: float, near: float = 2.0, span: int = 10, fall: float = 0.15) -> Callable[[dict], int | None]:
+    """tv's rule at ``tol``, or where the rule's value is below ``near`` × ``tol`` and has fallen by
+    less than ``fall`` of itself over the last ``span`` iterations (an image change that creeps down
+    without reaching ``tol``)."""
+    base = window_rule(tol)
+
+    def stop(row: dict) -> int | None:
+        first = armed_at(row)
+        rule = {t[0]: t[4] for t in row["trace"]}
+        k_base = base(row)
+        for k in sorted(rule):
+            if k_base is not None and k >= k_base:
+                return k_base
+            if k >= first + span and rule[k] is not None and rule.get(k - span) is not None \
+                    and rule[k] < near * tol and rule[k] > (1 - fall) * rule[k - span]:
+                return k
+        return k_base
+    return stop
+
+
 #: the rules judged: name -> (row -> the iteration it stops at)
 RULES: dict[str, Callable[[dict], int | None]] = {
     "tol 5e-3, window 3 (default)": window_rule(5e-3),
@@ -72,6 +92,7 @@ RULES: dict[str, Callable[[dict], int | None]] = {
     "tol 2.5e-3, window 3": window_rule(2.5e-3),
     "tol 5e-3, window 5": window_rule(5e-3, 5),
     "tol 5e-3, window 8": window_rule(5e-3, 8),
+    "tol 5e-3, or creeping below 2 tol": creeping_rule(5e-3),
 }
 
 
