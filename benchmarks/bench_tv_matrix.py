@@ -171,17 +171,12 @@ def family_members(groups) -> list[str]:
 
 def ner_seconds(data: np.ndarray, dx: float, dt: float, c: float, repeat: int = 2) -> float:
     """Seconds of one NER float32 of the dense record ``data`` at NER's own default grid (best of
-    ``repeat``, after a small run that compiles its kernels): the unit of tv's time."""
-    from fpscan.service.recon import reconstruct_grid
+    ``repeat``, after a small run that compiles its kernels): the unit of tv's time
+    (`bench_tv_paper.ner_seconds`)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_tv_paper import ner_seconds as seconds
 
-    data = np.asarray(data, np.float32)
-    reconstruct_grid(data[(slice(32),) + (slice(16),) * (data.ndim - 1)], dx, dt, c, dtype=np.float32)
-    best = math.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        reconstruct_grid(data, dx, dt, c, dtype=np.float32)
-        best = min(best, time.perf_counter() - t)
-    return best
+    return seconds(data, dx, dt, c, repeat)
 
 
 def make_mask(case: dict, percent: int):

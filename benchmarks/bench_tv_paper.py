@@ -84,6 +84,23 @@ def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_b
                 n=n, n_t=n_t)
 
 
+def ner_seconds(data: np.ndarray, dx: float, dt: float, c: float, repeat: int = 2) -> float:
+    """Seconds of one NER float32 of the dense record ``data`` ``(n_t, n_y, n_x)`` / ``(n_t, n_x)``
+    (pitch ``dx`` in m, ``dt`` in s, ``c`` in m/s) at NER's own default grid: the best of ``repeat``,
+    after a small run that compiles its kernels. The unit of tv's time here and in
+    `bench_tv_matrix`."""
+    from fpscan.service.recon import reconstruct_grid
+
+    data = np.asarray(data, np.float32)
+    reconstruct_grid(data[(slice(32),) + (slice(16),) * (data.ndim - 1)], dx, dt, c, dtype=np.float32)
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        reconstruct_grid(data, dx, dt, c, dtype=np.float32)
+        best = min(best, time.perf_counter() - t)
+    return float(best)
+
+
 def _rss() -> int:
     with open("/proc/self/statm") as fh:
         return int(fh.read().split()[1]) * resource.getpagesize()
@@ -114,19 +131,14 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     from fpscan.physics import ball_p0
     from fpscan.service.jobs.admission import estimate_memory
     from fpscan.service.metrics import correlation_coefficient
-    from fpscan.service.recon import reconstruct_grid, reconstruct_points
+    from fpscan.service.recon import reconstruct_points
     from fpscan.service.recon.tv import reconstruct_tv
     from fpscan.service.recon.tv.grid import record_facts
 
     case = paper_case(scale, snr, sensor_band=sensor_band, noise=noise)
     n, n_t = case["n"], case["n_t"]
     data = np.random.default_rng(2).standard_normal((n_t, n, n)).astype(np.float32)
-    reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, dtype=np.float32)  # compiled kernels
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        reconstruct_grid(data, PITCH, DT, C, dtype=np.float32)
-        best = min(best, time.perf_counter() - t)
+    best = ner_seconds(data, PITCH, DT, C, repeat)
     del data
     pos = case["positions"]
     # the admission's estimate of this job (fpscan.service.jobs.admission, as for a stored dataset: its record facts)
