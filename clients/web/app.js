@@ -576,7 +576,9 @@ async function buildMaskSelect() {
   }
   sel.value = "equisteradian" in KINDS ? "equisteradian" : list[0].kind;
   renderMaskParams();
-  schedulePreview(0);
+  // only the plan view previews (route() previews when it is opened later): a preview's
+  // answer must not clear, nor show, an error in another view
+  if (currentView === "plan") schedulePreview(0);
 }
 
 function renderMaskParams() {
@@ -757,7 +759,7 @@ async function updatePreview() {
     img.dataset.seq = String(previewSeq);
     $("plan-preview-state").textContent = `Preview up to date (${countOf(r.points)} points).`;
     panel.classList.remove("stale");
-    clearError();
+    if (currentView === "plan") clearError();  // not another view's error
   } catch (err) {
     if (err.name === "AbortError") return;
     $("plan-preview-state").textContent = "No preview: " + (err.detail || err.message);

@@ -151,6 +151,23 @@ def test_reconstruction_form_takes_dz_in_micrometres(browser, base, api, screens
     shot(browser, screenshots, "units-recon-form-refused")
 
 
+def test_only_the_plan_view_previews_so_no_preview_clears_another_view_s_error(browser, base, screenshots):
+    """A page opened on the jobs view makes no plan preview once its mask kinds are built:
+    a preview's answer clears the error banner, so one finishing after a refusal in the
+    reconstruct form would hide that refusal. Opening the plan view then previews."""
+    open_page(browser, f"{base}/#/jobs")
+    # buildMaskSelect fills the kinds and, on the old page, schedules its preview in the same task
+    wait_for(lambda: browser.execute_script("return document.getElementById('mask-kind').options.length") > 0,
+             "the mask kinds")
+    previews = ("return performance.getEntriesByType('resource')"
+                ".filter(e => e.name.includes('/api/plans/preview')).length")
+    busy = "return document.querySelector('.preview-panel').hasAttribute('aria-busy')"
+    assert not browser.execute_script(busy) and browser.execute_script(previews) == 0
+    el(browser, "nav-plan").click()
+    wait_for(lambda: preview_settled(browser), "the plan view's preview")
+    assert browser.execute_script(previews) >= 1
+
+
 def test_upload_form_reads_spacings_and_sound_speed_with_units(browser, base, api, screenshots, tmp_path):
     """The upload's dt and dx show ns and µm (their load options' display unit) and read
     "0.02 µs", "0.1 mm"; the sound speed reads "1.5 km/s": the dataset its job reads has
