@@ -49,25 +49,28 @@ Per row:
 - with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule, and
   on the vessel tree the thin segments seen at each.
 
-The gate: tv stops by its rule (converged) on every row; tv >= ref − 0.005 on every row; tv >= NER
-wherever ref >= NER; on the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and
-amp >= 0.85; at the paper's full size (the family's full-size members) <= 75 operator pairs and tv
-<= 150 x one NER float32 of the same process; with ``--rule``, the 300-iteration image's CC − tv's <=
+The gate: tv stops by its rule (converged) on every row; tv >= ref − 0.005 on every row (the
+reference at its own rule's λ, and on the paper's balls at tv's λ, `REF_AT_TV_LAM`); tv >= NER
+wherever ref >= NER; on the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 %
+(the mean over noise seeds 0-2: tv is run again at seeds 1 and 2 there, `SEEN_SEEDS`) and amp >= 0.85;
+at the paper's full size (the family's full-size members) <= 75 operator pairs and tv <= 150 x one
+NER float32 of the same process; with ``--rule``, the 300-iteration image's CC − tv's <=
 0.015; with ``--sweep``, the sweep's best CC − tv's <= 0.01. Rows run in ``--jobs`` processes, the
 strongest noise and the sparser mask first (the family's members after the other cases, in the
 family's order); ``--json`` keeps them, so that an interrupted table resumes where it stopped.
 
 Probes beside the defaults (each row records them; none is a default): ``--tol`` runs tv and ref to
 that stopping threshold; ``--declared HZ`` declares a sensor band for tv's run (the dataset's
-``sensor_bandwidth_hz``); ``--ref-lam tv`` runs the reference at tv's λ instead of its own rule's, so
-that the band and the record alone differ from tv's run. A reference at its own rule's λ shows that
-λ against tv's in the ref column.
+``sensor_bandwidth_hz``); ``--ref-lam tv`` runs every reference at tv's λ, so that the band and the
+record alone differ from tv's run, and ``--ref-lam rule`` every one at its own rule's λ (the
+default, ``gate``: the paper's at tv's, the others at their own). A reference at its own rule's λ
+shows that λ against tv's in the ref column.
 
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
 
     .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper family family-full]
         [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule [--rule-iterations 300]] [--sweep] [--seed 0]
-        [--no-reference] [--tol T] [--declared HZ] [--ref-lam rule|tv] [--jobs 2] [--json out.jsonl]
+        [--no-reference] [--tol T] [--declared HZ] [--ref-lam gate|rule|tv] [--jobs 2] [--json out.jsonl]
 """
 from __future__ import annotations
 
@@ -100,8 +103,16 @@ GATE_FULL_PAIRS, GATE_FULL_NER = 75, 150
 SEEN_CNR = 3.0
 #: rows where the vessel tree's thin segments and amplitude are gated: (mask %, noise)
 VESSEL_GATED = ((11, "peak30"), (4, "peak20"))
+#: the thin segments seen on a gated row are judged on their mean over this many noise seeds (the
+#: row's seed and the next ones): which segments stand out of one noise draw varies by a few of 72
+SEEN_SEEDS = 3
 #: the probes beside tv's defaults (module doc): None / "rule" / 300 are the table's own runs
-PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "rule", "rule_iterations": 300}
+PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "gate", "rule_iterations": 300}
+#: the cases whose reference runs at tv's λ in the gate: on the paper's balls the reference's own rule
+#: gives 4.5-4.8 times tv's λ (its full band raises the image's noise level per voxel), and the balls
+#: score higher at a stronger λ than any automatic rule picks (docs/results.md), so at its own λ the
+#: reference tested the λ rule rather than the band and the record it is there for
+REF_AT_TV_LAM = ("paper",)
 
 
 def noisy(clean: np.ndarray, noise: str, seed: int = 0) -> np.ndarray:
@@ -280,22 +291,14 @@ def traced_run(scan, c: float, truth: np.ndarray, **options):
     return result, trace
 
 
-def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict | None = None,
-            sweep: bool = False, reference: bool = True, seed: int = 0, probe: dict | None = None) -> dict:
-    """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
-    the CI subset's row; ``seed``: the noise's; ``probe``: the probes' options, `PROBE_DEFAULTS`
-    and the module doc)."""
+def sparse_scan(case: dict, mask, noise: str, seed: int, meta: dict):
+    """A case's record with noise ``noise`` of seed ``seed`` (a family member's offset by its own
+    seed), and its A-lines at ``mask``'s points as a `PointDataset` (area weights, the lattice's
+    axes as its grid, ``meta``): ``(record, scan)``."""
     from fpscan.physics.axes import centred_axis
-    from fpscan.service.metrics import correlation_coefficient
-    from fpscan.service.pipeline import reconstruct
-    from fpscan.service.recon import reconstruct_grid
-    from fpscan.service.recon.dataset import GridDataset, PointDataset
-    from fpscan.service.recon.methods.tv import BANDWIDTH_KEY
+    from fpscan.service.recon.dataset import PointDataset
 
-    probe = {**PROBE_DEFAULTS, **(probe or {})}
-    case = load_case(name) if case is None else case
-    data = noisy(case["clean"], noise, seed + case.get("seed", 0))  # a family member's own seed
-    mask = make_mask(case, percent)
+    data = noisy(case["clean"], noise, seed + case.get("seed", 0))
     dt, dx, c = case["dt"], case["dx"], case["c"]
     two_d = data.ndim == 2
     shape = data.shape[1:]
@@ -303,9 +306,27 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     alines = (data[:, ix[:, 0]] if two_d else data[:, ix[:, 1], ix[:, 0]]).T
     axes = (centred_axis(shape[-1], dx),) if two_d else (centred_axis(shape[1], dx), centred_axis(shape[0], dx))
     pos = np.asarray(mask.positions, float)[:, : 1 if two_d else 2]  # a line's sensors: x alone
+    return data, PointDataset(alines=alines, positions=pos, dt=dt, sound_speed=c,
+                              weights=np.asarray(mask.weights, float), grid=axes, meta=meta)
+
+
+def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict | None = None,
+            sweep: bool = False, reference: bool = True, seed: int = 0, probe: dict | None = None) -> dict:
+    """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
+    the CI subset's row; ``seed``: the noise's; ``probe``: the probes' options, `PROBE_DEFAULTS`
+    and the module doc)."""
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.recon import reconstruct_grid
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.methods.tv import BANDWIDTH_KEY
+
+    probe = {**PROBE_DEFAULTS, **(probe or {})}
+    case = load_case(name) if case is None else case
+    mask = make_mask(case, percent)
+    dt, dx, c = case["dt"], case["dx"], case["c"]
     declared = {} if probe["declared"] is None else {BANDWIDTH_KEY: probe["declared"]}
-    scan = PointDataset(alines=alines, positions=pos, dt=dt, sound_speed=c, weights=np.asarray(mask.weights, float),
-                        grid=axes, meta=declared)
+    data, scan = sparse_scan(case, mask, noise, seed, declared)
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
     tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
     t = time.perf_counter()
@@ -319,7 +340,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     dense = GridDataset(data=data, dt=dt, sound_speed=c, dx=dx)
     ner_opts = grid_opts or {"dz": float(tv.z[1] - tv.z[0]), "n_z": len(tv.z)}
     ner = reconstruct_grid(dense.data, dx, dt, c, dtype=np.float32, **ner_opts).p0
-    row = dict(case=name, mask=percent, points=len(pos), noise=noise, seed=seed,
+    row = dict(case=name, mask=percent, points=len(scan.positions), noise=noise, seed=seed,
                tv=correlation_coefficient(tv.p0, truth), ner=correlation_coefficient(np.maximum(ner, 0), truth),
                amp=amplitude(tv.p0, truth), band=p["band"], band_reason=p["band_reason"], grid=list(tv.p0.shape),
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
@@ -332,14 +353,21 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     if lines is not None:
         row["seen"], row["thin"] = thin_segments_seen(tv.p0, lines, case["radius_voxels"])
         row["ner_seen"], _ = thin_segments_seen(np.maximum(ner, 0), lines, case["radius_voxels"])
+        if (percent, noise) in VESSEL_GATED:  # the gate's mean over `SEEN_SEEDS` noise draws
+            seeds = {seed: row["seen"]}
+            for other in range(seed + 1, seed + SEEN_SEEDS):
+                redrawn = reconstruct(sparse_scan(case, mask, noise, other, declared)[1], "tv", dtype="float32",
+                                      **grid_opts, **tol)
+                seeds[other], _ = thin_segments_seen(redrawn.p0, lines, case["radius_voxels"])
+            row["seen_seeds"], row["seen_mean"] = seeds, float(np.mean(list(seeds.values())))
     if reference:
-        full_band = PointDataset(alines=alines, positions=pos, dt=dt, sound_speed=c, weights=scan.weights, grid=axes,
-                                 meta={BANDWIDTH_KEY: 0.5 / dt})  # the record's Nyquist frequency declared
-        ref_lam = {"lam": p["lam"]} if probe["ref_lam"] == "tv" else {}
+        full_band = sparse_scan(case, mask, noise, seed, {BANDWIDTH_KEY: 0.5 / dt})[1]  # the record's Nyquist declared
+        at_tv = probe["ref_lam"] == "tv" or (probe["ref_lam"] == "gate" and name in REF_AT_TV_LAM)
+        ref_lam = {"lam": p["lam"]} if at_tv else {}
         ref = reconstruct(full_band, "tv", dtype="float32", whole_record=True, **grid_opts, **tol, **ref_lam)
         ref_truth = truth if case["p0"] is not None else balls_p0(case["balls"], ref.z, ref.x, ref.y, supersample=2)
         row.update(ref=correlation_coefficient(ref.p0, ref_truth), ref_pairs=ref.params["operator_pairs"],
-                   ref_converged=ref.params["converged"], ref_lam_value=ref.params["lam"],
+                   ref_converged=ref.params["converged"], ref_lam_value=ref.params["lam"], ref_at_tv_lam=at_tv,
                    ref_iterations=ref.params["iterations"], ref_grid=list(ref.p0.shape))
         if lines is not None:
             row["ref_seen"], _ = thin_segments_seen(ref.p0, lines, case["radius_voxels"])
@@ -374,8 +402,9 @@ def gate(row: dict) -> list[str]:
     if row.get("ref", math.inf) >= row["ner"] and row["tv"] < row["ner"]:  # without a ref run: always
         fails.append(f"tv {row['tv']:.4f} < NER {row['ner']:.4f}")
     if row["case"] == "vessels" and (row["mask"], row["noise"]) in VESSEL_GATED:
-        if not row["seen"] >= GATE_SEEN:
-            fails.append(f"thin segments seen {row['seen']:.0%} < {GATE_SEEN:.0%}")
+        seen = row.get("seen_mean", row["seen"])  # rows from before the seeds' mean: one draw
+        if not seen >= GATE_SEEN:
+            fails.append(f"thin segments seen {seen:.1%} < {GATE_SEEN:.0%}")
         if not row["amp"] >= GATE_AMP:
             fails.append(f"amplitude {row['amp']:.2f} < {GATE_AMP}")
     if "cc300" in row and row["cc300"] - row["tv"] > GATE_RULE:
@@ -389,10 +418,12 @@ def format_row(r: dict) -> str:
     """One markdown row of the table (a row without a reference run shows "-" there)."""
     band = "Nyquist" if r["band"] is None else f"{r['band'] / 1e6:.2f} MHz"
     ref = f"{r['ref']:.4f}" if "ref" in r else "-"
-    if "ref_lam_value" in r and r.get("ref_lam", "rule") == "rule":  # its own rule's λ, against tv's
+    if "ref_lam_value" in r and not r.get("ref_at_tv_lam", r.get("ref_lam") == "tv"):  # its own rule's λ, against tv's
         ref += f" (λ x {r['ref_lam_value'] / r['lam']:.1f})"
     ref_seen = f"{r['ref_seen']:.0%}" if "ref_seen" in r else "-"
     seen = f"{r['seen']:.0%} ({ref_seen}, {r['ner_seen']:.0%})" if "seen" in r else ""
+    if "seen_mean" in r:  # a gated row: the gate's mean over the noise seeds
+        seen += f"; seeds {'/'.join(f'{v:.0%}' for v in r['seen_seeds'].values())}, mean {r['seen_mean']:.1%}"
     rule = f" | {r['cc300']:.4f}" if "cc300" in r else ""
     if "sweep" in r:
         rule += " | " + " ".join(f"{r['sweep'][k]:.4f}" for k in sorted(r["sweep"], key=int))
@@ -431,8 +462,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rule-iterations", type=int, default=300, help="--rule's long run: its iterations")
     ap.add_argument("--tol", type=float, default=None, help="probe: tv's and ref's stopping threshold")
     ap.add_argument("--declared", type=float, default=None, help="probe: a sensor band (Hz) declared for tv's run")
-    ap.add_argument("--ref-lam", choices=("rule", "tv"), default="rule",
-                    help="probe: the reference at its own λ rule (the gate's) or at tv's λ")
+    ap.add_argument("--ref-lam", choices=("gate", "rule", "tv"), default="gate",
+                    help="the reference's λ: the gate's (tv's on the paper's balls, its own rule's elsewhere), "
+                         "probe: its own rule's or tv's on every row")
     ap.add_argument("--jobs", type=int, default=2, help="rows in parallel (processes)")
     ap.add_argument("--json", type=Path, default=None,
                     help="append each row as a JSON line; rows already there are printed, not run again")

@@ -2,8 +2,9 @@
 `benchmarks/bench_tv_matrix.py`: k-Wave's vessel tree and balls + yarn (the ``shared_data``
 fixture), a 4 % equi-steradian mask, noise 20 dB below the peak (k-Wave's ``addNoise(..., 'peak')``).
 tv's default image (the one dispatch, float32, the phantom's depth grid) must beat full-data NER's
-CC with the true p0, and on the vessel tree keep the amplitude the gate asks for and the thin
-vessels its reference sees (the reference run itself is the whole matrix's, too slow for CI)."""
+CC with the true p0, stop by its rule, and on the vessel tree keep the amplitude and the thin vessels
+the gate asks for (the mean over three noise draws); the reference run itself is the whole matrix's,
+too slow for CI."""
 from __future__ import annotations
 
 import importlib.util
@@ -11,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.long(85)
+pytestmark = pytest.mark.long(90)
 
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_tv_matrix.py"
 
@@ -33,8 +34,10 @@ def test_tv_defaults_pass_the_quality_gate_on_kwave_data_at_4_percent_and_20_db_
     assert row["band_reason"] == "lateral" and row["converged"], row
     assert row["tv"] >= row["ner"], row  # beats full-data NER from 4 % of the points
     if case == "vessels":
-        # the amplitude as the gate asks; thin vessels: the gate's 95 % sits above what tv's own reference (the
-        # whole record at full band) sees here, 92 % (full-data NER: 99 %); tv saw 94 % (68 of 72), and the
-        # an earlier tv grid 0 %: this holds the floor measured, not the gate's 95 % (docs/results.md)
+        # the amplitude and the thin vessels as the gate asks: the share of the 72 thin segments seen, averaged
+        # over noise seeds 0-2 (one draw sees 94-99 % of them; tv's own reference, the whole record at full
+        # band, sees 92 % at seed 0)
         assert row["thin"] == 72 and row["amp"] >= bench.GATE_AMP, row
-        assert row["seen"] >= 0.9, row
+        assert sorted(row["seen_seeds"]) == [0, 1, 2], row
+        assert row["seen_mean"] >= bench.GATE_SEEN, row["seen_seeds"]
+    assert not bench.gate(row), bench.gate(row)  # the whole gate of a row without its reference run
