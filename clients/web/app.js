@@ -714,7 +714,12 @@ const PREVIEW_RETRY_MS = 5000;
 function schedulePreview(delay = 300) {
   clearTimeout(previewTimer);
   document.querySelector(".preview-panel").setAttribute("aria-busy", "true");
-  previewTimer = setTimeout(() => { previewTimer = null; updatePreview().catch(showError); }, delay);
+  previewTimer = setTimeout(() => {
+    previewTimer = null;
+    // left the plan view meanwhile (a retry after 429): route() previews when it is opened again
+    if (currentView !== "plan") { if (!previewAbort) document.querySelector(".preview-panel").removeAttribute("aria-busy"); return; }
+    updatePreview().catch(showError);
+  }, delay);
 }
 
 function countOf(points) {
