@@ -63,7 +63,9 @@ Probes beside the defaults (each row records them; none is a default): ``--tol``
 that stopping threshold; ``--declared HZ`` declares a sensor band for tv's run (the dataset's
 ``sensor_bandwidth_hz``); ``--ref-lam tv`` runs every reference at tv's λ, so that the band and the
 record alone differ from tv's run, and ``--ref-lam rule`` every one at its own rule's λ (the
-default, ``gate``: the paper's at tv's, the others at their own). A reference at its own rule's λ
+default, ``gate``: the paper's at tv's, the others at their own); ``--lam-reach RHO`` gives tv λ =
+max(the automatic λ, RHO · L · max x₀), L tv's first step gain and x₀ its warm start
+(`tv_lam_reach.py`), and the sweep and the long run take that λ. A reference at its own rule's λ
 shows that λ against tv's in the ref column.
 
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
@@ -107,7 +109,7 @@ VESSEL_GATED = ((11, "peak30"), (4, "peak20"))
 #: row's seed and the next ones): which segments stand out of one noise draw varies by a few of 72
 SEEN_SEEDS = 3
 #: the probes beside tv's defaults (module doc): None / "rule" / 300 are the table's own runs
-PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "gate", "rule_iterations": 300}
+PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "gate", "rule_iterations": 300, "lam_reach": None}
 #: the cases whose reference runs at tv's λ in the gate: on the paper's balls the reference's own rule
 #: gives 4.5-4.8 times tv's λ (its full band raises the image's noise level per voxel), and the balls
 #: score higher at a stronger λ than any automatic rule picks (docs/results.md), so at its own λ the
@@ -329,9 +331,21 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     data, scan = sparse_scan(case, mask, noise, seed, declared)
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
     tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
+
+    def lam_of(dataset) -> dict:  # the probe --lam-reach: λ at least RHO · L · max x₀ (tv_lam_reach.py)
+        if probe["lam_reach"] is None:
+            return {}
+        from fpscan import tv_problem
+        from fpscan.service.recon.tv.fista import MARGIN
+
+        problem = tv_problem(dataset, dtype="float32", **grid_opts)
+        floor = probe["lam_reach"] * MARGIN * problem.params["step_gain"] * float(problem.warm_start.max())
+        return {"lam": max(problem.lam, floor)}
+
+    lam_opt = lam_of(scan)
     t = time.perf_counter()
     events: list[list] = []
-    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol,
+    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol, **lam_opt,
                      progress=lambda fraction, stage: events.append(progress_event(time.perf_counter() - t, fraction, stage)))
     tv_s = time.perf_counter() - t
     p = tv.params
@@ -356,8 +370,8 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         if (percent, noise) in VESSEL_GATED:  # the gate's mean over `SEEN_SEEDS` noise draws
             seeds = {seed: row["seen"]}
             for other in range(seed + 1, seed + SEEN_SEEDS):
-                redrawn = reconstruct(sparse_scan(case, mask, noise, other, declared)[1], "tv", dtype="float32",
-                                      **grid_opts, **tol)
+                other_scan = sparse_scan(case, mask, noise, other, declared)[1]
+                redrawn = reconstruct(other_scan, "tv", dtype="float32", **grid_opts, **tol, **lam_of(other_scan))
                 seeds[other], _ = thin_segments_seen(redrawn.p0, lines, case["radius_voxels"])
             row["seen_seeds"], row["seen_mean"] = seeds, float(np.mean(list(seeds.values())))
     if reference:
@@ -462,6 +476,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rule-iterations", type=int, default=300, help="--rule's long run: its iterations")
     ap.add_argument("--tol", type=float, default=None, help="probe: tv's and ref's stopping threshold")
     ap.add_argument("--declared", type=float, default=None, help="probe: a sensor band (Hz) declared for tv's run")
+    ap.add_argument("--lam-reach", type=float, default=None, metavar="RHO",
+                    help="probe: tv's λ at least RHO x L x the warm start's peak (benchmarks/tv_lam_reach.py)")
     ap.add_argument("--ref-lam", choices=("gate", "rule", "tv"), default="gate",
                     help="the reference's λ: the gate's (tv's on the paper's balls, its own rule's elsewhere), "
                          "probe: its own rule's or tv's on every row")
@@ -470,7 +486,8 @@ def main(argv=None) -> int:
                     help="append each row as a JSON line; rows already there are printed, not run again")
     args = ap.parse_args(argv)
     # every case first at the strongest noise and the sparser mask: the rows that decide the gate soonest
-    probe = {"tol": args.tol, "declared": args.declared, "ref_lam": args.ref_lam, "rule_iterations": args.rule_iterations}
+    probe = {"tol": args.tol, "declared": args.declared, "ref_lam": args.ref_lam, "rule_iterations": args.rule_iterations,
+             "lam_reach": args.lam_reach}
     options = (args.rule, args.sweep, args.seed, not args.no_reference, probe)
     todo = [(c, m, n, *options) for n in args.noise for m in args.masks for c in args.cases if c in CASES]
     family = _family()
