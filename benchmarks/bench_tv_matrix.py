@@ -359,7 +359,8 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                amp=amplitude(tv.p0, truth), band=p["band"], band_reason=p["band_reason"], grid=list(tv.p0.shape),
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
                extent=p["extent_reason"], pairs=p["operator_pairs"], iterations=p["iterations"],
-               converged=p["converged"], stop=p.get("stop_reason"), lam=p["lam"], lam_factor=p["lam_factor"],
+               converged=p["converged"], stop=p.get("stop_reason"), lam=p["lam"],
+               lam_factor=p["lam_factor"] if p["lam_factor"] is not None else p["lam"] / p["image_noise"],  # λ given
                tv_s=tv_s, ner_s=ner_seconds(data, dx, dt, c), events=events, **probe)
     if "scale" in case:  # a family member: its size and objects
         row.update(scale=case["scale"], member_seed=case["seed"], phantom=_family().describe(case))
