@@ -108,7 +108,7 @@ VESSEL_GATED = ((11, "peak30"), (4, "peak20"))
 #: the thin segments seen on a gated row are judged on their mean over this many noise seeds (the
 #: row's seed and the next ones): which segments stand out of one noise draw varies by a few of 72
 SEEN_SEEDS = 3
-#: the probes beside tv's defaults (module doc): None / "rule" / 300 are the table's own runs
+#: the probes beside tv's defaults (module doc): these values are the table's own runs
 PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "gate", "rule_iterations": 300, "lam_reach": None}
 #: the cases whose reference runs at tv's λ in the gate: on the paper's balls the reference's own rule
 #: gives 4.5-4.8 times tv's λ (its full band raises the image's noise level per voxel), and the balls

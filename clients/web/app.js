@@ -717,7 +717,10 @@ function schedulePreview(delay = 300) {
   previewTimer = setTimeout(() => {
     previewTimer = null;
     // left the plan view meanwhile (a retry after 429): route() previews when it is opened again
-    if (currentView !== "plan") { if (!previewAbort) document.querySelector(".preview-panel").removeAttribute("aria-busy"); return; }
+    if (currentView !== "plan") {
+      if (!previewAbort) document.querySelector(".preview-panel").removeAttribute("aria-busy");
+      return;
+    }
     updatePreview().catch(showError);
   }, delay);
 }
