@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.long(90)
+pytestmark = pytest.mark.long(95)
 
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_tv_matrix.py"
 
