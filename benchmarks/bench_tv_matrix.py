@@ -293,6 +293,15 @@ def traced_run(scan, c: float, truth: np.ndarray, **options):
     return result, trace
 
 
+def full_reach(problem) -> float:
+    """L · max x₀ (Pa) of a `fpscan.service.recon.tv.formulation.TvProblem`: the λ at which tv's
+    proximal step λ TV / L, L = `MARGIN` × its gain estimate, weighs TV by the warm start's peak x₀
+    (ρ = λ / that = 1; `tv_lam_reach.py`)."""
+    from fpscan.service.recon.tv.fista import MARGIN
+
+    return MARGIN * problem.params["step_gain"] * float(problem.warm_start.max())
+
+
 def sparse_scan(case: dict, mask, noise: str, seed: int, meta: dict):
     """A case's record with noise ``noise`` of seed ``seed`` (a family member's offset by its own
     seed), and its A-lines at ``mask``'s points as a `PointDataset` (area weights, the lattice's
@@ -336,11 +345,9 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         if probe["lam_reach"] is None:
             return {}
         from fpscan import tv_problem
-        from fpscan.service.recon.tv.fista import MARGIN
 
         problem = tv_problem(dataset, dtype="float32", **grid_opts)
-        floor = probe["lam_reach"] * MARGIN * problem.params["step_gain"] * float(problem.warm_start.max())
-        return {"lam": max(problem.lam, floor)}
+        return {"lam": max(problem.lam, probe["lam_reach"] * full_reach(problem))}
 
     lam_opt = lam_of(scan)
     t = time.perf_counter()

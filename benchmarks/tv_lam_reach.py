@@ -28,36 +28,33 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_tv_matrix as matrix
 
 
+def described(problem, case: str, mask: int, noise: str, seed: int) -> dict:
+    """ρ, λ, L · max x₀, λ / s and D₀ of a row's `TvProblem` (module doc)."""
+    unit = matrix.full_reach(problem)
+    return dict(case=case, mask=mask, noise=noise, seed=seed, lam=problem.lam, reach_unit=unit,
+                rho=problem.lam / unit, lam_factor=problem.params["lam_factor"],
+                warm_discrepancy=problem.params["warm_discrepancy"])
+
+
 def reach(name: str, percent: int, noise: str, seed: int = 0) -> dict:
-    """ρ, λ, L, max x₀, λ / s and D₀ of one row (module doc)."""
+    """`described` of one row of `bench_tv_matrix` (module doc)."""
     from fpscan import tv_problem
-    from fpscan.service.recon.tv.fista import MARGIN
 
     case = matrix.load_case(name)
     _, scan = matrix.sparse_scan(case, matrix.make_mask(case, percent), noise, seed, {})
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
-    problem = tv_problem(scan, dtype="float32", **grid_opts)
-    L = MARGIN * problem.params["step_gain"]
-    peak = float(problem.warm_start.max())
-    return dict(case=name, mask=percent, noise=noise, seed=seed, lam=problem.lam, L=L, x0_max=peak,
-                rho=problem.lam / (L * peak), lam_factor=problem.params["lam_factor"],
-                warm_discrepancy=problem.params["warm_discrepancy"])
+    return described(tv_problem(scan, dtype="float32", **grid_opts), name, percent, noise, seed)
 
 
 def solver_reach(kind: str, points: int, snr_db: float, seed: int = 0) -> dict:
-    """`reach` of a 3-D case of `bench_tv_solver` (module doc)."""
+    """`described` of a 3-D case of `bench_tv_solver` (module doc)."""
     import bench_tv_solver as solver
 
-    from fpscan.service.recon.tv.fista import MARGIN
     from fpscan.service.recon.tv.reconstruct import tv_problem
 
     _, alines, positions, options = solver.make_case(kind, 3, snr_db, points, seed)
     problem = tv_problem(alines, solver.DT, solver.C, positions=positions, **options)
-    L = MARGIN * problem.params["step_gain"]
-    peak = float(problem.warm_start.max())
-    return dict(case=f"solver-{kind}", mask=points, noise=f"rms{snr_db:g}", seed=seed, lam=problem.lam, L=L,
-                x0_max=peak, rho=problem.lam / (L * peak), lam_factor=problem.params["lam_factor"],
-                warm_discrepancy=problem.params["warm_discrepancy"])
+    return described(problem, f"solver-{kind}", points, f"rms{snr_db:g}", seed)
 
 
 def main(argv=None) -> None:
