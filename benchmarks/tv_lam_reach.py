@@ -2,8 +2,9 @@
 
 Each of tv's iterations takes a proximal step of λ TV / L (`fpscan.service.recon.tv.fista`), so ρ is
 that step's weight relative to the warm start's peak x₀ (NER's image on tv's grid, Pa): how far TV
-can reshape the image per iteration. Printed beside it: λ / s (the automatic rule's factor of the
-image's noise level s) and D₀ (the warm start's discrepancy in noise norms), the rule's inputs
+can reshape the image per iteration. Printed beside it: ρ of the noise-level rule's λ alone (below
+tv's reach floor, 3e-4, where that floor set λ), λ / s (the automatic λ's factor of the image's
+noise level s) and D₀ (the warm start's discrepancy in noise norms), the rule's inputs
 (`fpscan.service.recon.tv.lam`). The set-up only (`fpscan.tv_problem`: the warm start and the
 gain estimate), no solve: seconds per row.
 
@@ -29,11 +30,14 @@ import bench_tv_matrix as matrix
 
 
 def described(problem, case: str, mask: int, noise: str, seed: int) -> dict:
-    """ρ, λ, L · max x₀, λ / s and D₀ of a row's `TvProblem` (module doc)."""
+    """ρ, λ, L · max x₀, λ / s and D₀ of a row's `TvProblem` (module doc), and ρ of the noise-level
+    rule's λ alone (``rho_noise``: below the reach floor where it set λ, ``floored``;
+    `fpscan.service.recon.tv.lam.REACH_FLOOR`)."""
+    p = problem.params
     unit = matrix.full_reach(problem)
     return dict(case=case, mask=mask, noise=noise, seed=seed, lam=problem.lam, reach_unit=unit,
-                rho=problem.lam / unit, lam_factor=problem.params["lam_factor"],
-                warm_discrepancy=problem.params["warm_discrepancy"])
+                rho=problem.lam / unit, rho_noise=p["lam_noise_level"] / unit, floored=p["lam_floored"],
+                lam_factor=p["lam_factor"], warm_discrepancy=p["warm_discrepancy"])
 
 
 def reach(name: str, percent: int, noise: str, seed: int = 0) -> dict:
@@ -64,14 +68,14 @@ def main(argv=None) -> None:
     ap.add_argument("--json", action="store_true", help="one JSON line per row instead of the table")
     args = ap.parse_args(argv)
     if not args.json:
-        print("| row | ρ = λ / (L max x₀) | λ / s | D₀ |\n|---|---|---|---|")
+        print("| row | ρ = λ / (L max x₀) | ρ of the noise-level λ | λ / s | D₀ |\n|---|---|---|---|---|")
     for spec in args.rows:
         if spec.startswith("solver-"):
             kind, points, snr = spec.removeprefix("solver-").split(":")
             r = solver_reach(kind, int(points), float(snr), args.seed)
             name, percent, noise = r["case"], r["mask"], r["noise"]
             print(json.dumps(r) if args.json else
-                  f"| {name}, {percent} points, {noise} | {r['rho']:.2e} | {r['lam_factor']:.2f} | "
+                  f"| {name}, {percent} points, {noise} | {r['rho']:.2e} | {r['rho_noise']:.2e} | {r['lam_factor']:.2f} | "
                   f"{r['warm_discrepancy']:.1f} |", flush=True)
             continue
         if spec.startswith("family"):
@@ -83,7 +87,8 @@ def main(argv=None) -> None:
             percent = int(mask)
         r = reach(name, percent, noise, args.seed)
         print(json.dumps(r) if args.json else
-              f"| {name}, {percent} %, {noise} | {r['rho']:.2e} | {r['lam_factor']:.2f} | {r['warm_discrepancy']:.1f} |",
+              f"| {name}, {percent} %, {noise} | {r['rho']:.2e} | {r['rho_noise']:.2e} | {r['lam_factor']:.2f} | "
+              f"{r['warm_discrepancy']:.1f} |",
               flush=True)
 
 

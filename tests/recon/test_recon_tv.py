@@ -164,9 +164,12 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
 def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     """D₀ = ‖A x₀ − g‖ / (σ̂ √N) of the NEDNER warm start (p0 >= 0), A the direct-sum forward
     model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
-    start misses the data by far more than the noise, so λ is several image noise levels."""
+    start misses the data by far more than the noise, so λ is several image noise levels; and λ is at
+    least the reach floor, `REACH_FLOOR` of L · max x₀ (L = `MARGIN` ‖BA‖ before the first iteration,
+    x₀ that warm start)."""
     from fpscan.physics.forward import forward_points
-    from fpscan.service.recon.tv.lam import LAM_KNEE, LAM_POWER, LAM_SCALE
+    from fpscan.service.recon.tv.fista import MARGIN
+    from fpscan.service.recon.tv.lam import LAM_KNEE, LAM_POWER, LAM_SCALE, REACH_FLOOR
 
     b = balls_3d
     # at the record's own band (declared): the oracle's model is the direct sum at the record's sampling (the 2 DZ
@@ -180,8 +183,14 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     p = auto.params
     assert p["warm_discrepancy"] == pytest.approx(d0, rel=2e-3)
     assert d0 > 2 * LAM_KNEE
-    assert p["lam_factor"] == pytest.approx(LAM_SCALE * (d0 / LAM_KNEE) ** LAM_POWER, rel=2e-3)
+    noise_rule = LAM_SCALE * (d0 / LAM_KNEE) ** LAM_POWER * p["image_noise"]
+    # one iteration: L has not moved from MARGIN ‖BA‖ (its first rise comes at the second)
+    floor = REACH_FLOOR * MARGIN * p["norm_A"] * float(np.maximum(warm, 0).max())
+    assert p["lam"] == pytest.approx(max(noise_rule, floor), rel=2e-3)
+    assert p["lam_floored"] == (floor > noise_rule)
+    assert p["lam_noise_level"] == pytest.approx(noise_rule, rel=2e-3)
     assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
+    assert p["prox_reach"] >= REACH_FLOOR * (1 - 1e-9)
 
 
 def test_memory_estimate_admits_by_method():

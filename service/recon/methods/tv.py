@@ -113,7 +113,8 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
                                                  "declared sensor band f"})
     lam: Lam = Field(None, description="TV weight λ in the data's units",
                      json_schema_extra={"unit": "data units",
-                                        "derived": "from the noise level and the warm start's misfit"})
+                                        "derived": "from the noise level and the warm start's misfit, "
+                                                   "at least a floor set by the warm start's peak"})
     max_iter: Iterations = Field(DEFAULT_MAX_ITER, description="the iteration cap of the solver",
                                  json_schema_extra={"unit": "1"})
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "

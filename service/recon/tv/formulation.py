@@ -29,6 +29,7 @@ import numpy as np
 
 from fpscan.physics import workspace
 from fpscan.service.progress import span
+from fpscan.service.recon.tv.fista import MARGIN
 from fpscan.service.recon.tv.geometry import geometry_numbers
 from fpscan.service.recon.tv.lam import DiscrepancyRule
 from fpscan.service.recon.tv.preconditioner import apply_weight
@@ -141,8 +142,10 @@ def set_up(record: Record, dev: str, report: Reporter, *, c: float, dx: float | 
     if not gain > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
-    # λ's rule of the image's noise level and the warm start's discrepancy (`fpscan.service.recon.tv.lam`)
-    rule = DiscrepancyRule(record.sigma * noise_rms, record.noise_norm)
+    # λ's rule of the image's noise level and the warm start's discrepancy, at least the reach floor's
+    # share of L · max x₀ (`fpscan.service.recon.tv.lam`; L = MARGIN ‖BA‖, the solver's first)
+    rule = DiscrepancyRule(record.sigma * noise_rms, record.noise_norm,
+                           reach_unit=MARGIN * gain * max(0.0, float(warm.p0.max())))
     return SetUp(warm, model, gain, noise_rms, geometry_kept, rule)
 
 
@@ -187,7 +190,9 @@ class TvProblem:
         symmetric positive definite, P AᵀA ≈ const · I for a full planar aperture.
     params : dict
         How λ came about: ``lam_auto``, ``image_noise`` (s, Pa), ``warm_discrepancy`` (D₀),
-        ``lam_factor`` (λ / s; None for a given λ), ``noise_sigma`` (σ̂, Pa), ``warm_residual``
+        ``lam_factor`` (λ / s; None for a given λ), ``lam_floored`` (the automatic λ is the reach
+        floor's), ``lam_noise_level`` (the noise-level rule's λ before the floor; None for a given λ),
+        ``prox_reach`` (ρ = λ / (L max x₀)), ``noise_sigma`` (σ̂, Pa), ``warm_residual``
         (‖A x₀ − g‖, Pa) and ``step_gain`` (tv's ‖P AᵀA‖ estimate).
 
     Examples
@@ -320,7 +325,9 @@ def problem_of(parts: SetUp, record: Record, lam: float | None, positivity: bool
     preconditioner = pylops.FunctionOperator(weight, weight, n, n, dtype=model.dtype, name="P")
     gradient = pylops.Gradient(shape, sampling=1.0, edge=False, kind="forward", dtype=model.dtype)
     params = dict(lam_auto=lam is None, image_noise=rule.image_noise, warm_discrepancy=rule.warm_discrepancy,
-                  lam_factor=rule.factor if lam is None else None, noise_sigma=record.sigma,
+                  lam_factor=rule.factor if lam is None else None, lam_floored=lam is None and rule.floored,
+                  lam_noise_level=rule.noise_level_lam if lam is None else None,
+                  prox_reach=value / rule.reach_unit if rule.reach_unit > 0 else None, noise_sigma=record.sigma,
                   warm_residual=residual, step_gain=parts.gain)
     return TvProblem(operator=model.op, data=record.g, warm_start=start, grid=record.grid, lam=value,
                      positivity=bool(positivity), z=warm.z, x=warm.x, y=warm.y, gradient=gradient,

@@ -11,6 +11,15 @@ discrepancy in units of the noise's norm (free: the solver's first forward): on 
 the image's error is mostly undersampling artefacts, which D₀ measures, and λ rises mildly
 with it.
 
+The reach floor: the automatic λ is at least `REACH_FLOOR` · L · max x₀ (L the step's 1 / step
+size, `fpscan.service.recon.tv.fista.MARGIN` ‖BA‖; x₀ the warm start). Each iteration's proximal step weighs TV by λ / L, so ρ =
+λ / (L max x₀) is how far TV can reshape the image in one iteration relative to its peak; the
+directions the sparse data leave to TV move by about that much a step. Where the noise is low, the
+noise-level rule's λ gives ρ of 1e-5 to 1e-4, and the image at the stopping rule is still far from
+J's minimiser at that λ (0.015-0.06 CC below its 300-iteration image), while a stronger weight both
+lifts the stopped image and stops it near its own minimiser. What sets `REACH_FLOOR`:
+docs/tv-measurements.md, "Automatic λ".
+
 Continuation (``continuation=True``): iteration k takes its proximal step with λ_k = λ ·
 max(1, D₀ · `CONTINUATION_RATE` ** (k − 1)) (`Continuation`), from λ D₀ down to λ, D₀ at
 least 1 and capped so that λ is reached within half of ``max_iter``; the restart test
@@ -22,7 +31,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "CONTINUATION_RATE", "DiscrepancyRule", "Continuation"]
+__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "REACH_FLOOR", "CONTINUATION_RATE", "DiscrepancyRule", "Continuation"]
 
 #: the automatic λ = image noise level × LAM_SCALE × max(1, (D₀ / LAM_KNEE) ** LAM_POWER),
 #: D₀ the warm start's discrepancy over the noise's norm (module doc; calibrated on
@@ -30,15 +39,19 @@ __all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "CONTINUATION_RATE", "Discrepan
 LAM_SCALE = 0.6
 LAM_KNEE = 9.5
 LAM_POWER = 0.25
+#: the automatic λ is at least REACH_FLOOR · L · max x₀: its proximal step's weight λ / L at least
+#: this share of the warm start's peak (module doc)
+REACH_FLOOR = 3e-4
 CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (module doc)
 
 
 class DiscrepancyRule:
     """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc).
 
-    ``rule(r₀)`` = s · `LAM_SCALE` · max(1, (D₀ / `LAM_KNEE`) ** `LAM_POWER`), D₀ = r₀ / (σ̂ √N),
-    for the image's noise level s and the noise's norm σ̂ √N; the noise level after Donoho &
-    Johnstone, Biometrika 81 (1994) 425, the problem after Arridge et al., PMB 61 (2016) 8908.
+    ``rule(r₀)`` = max(s · `LAM_SCALE` · max(1, (D₀ / `LAM_KNEE`) ** `LAM_POWER`), `REACH_FLOOR` ·
+    ``reach_unit``), D₀ = r₀ / (σ̂ √N), for the image's noise level s and the noise's norm σ̂ √N;
+    the noise level after Donoho & Johnstone, Biometrika 81 (1994) 425, the problem after Arridge
+    et al., PMB 61 (2016) 8908.
 
     Parameters
     ----------
@@ -46,15 +59,22 @@ class DiscrepancyRule:
         s = σ̂ ‖P Aᵀ n̂‖_rms, the image's noise level (the data's unit, Pa).
     noise_norm : float
         σ̂ √N, the noise's norm over the record's N samples (Pa); 0: no noise estimate.
+    reach_unit : float, optional
+        L · max x₀ (Pa): the step's L times the warm start's peak, the λ at which the proximal
+        step would weigh TV by the whole peak (ρ = 1; module doc). 0 (the default): no floor.
 
     Attributes
     ----------
-    image_noise, noise_norm : float
+    image_noise, noise_norm, reach_unit : float
         As given.
     factor : float
         λ / s after the call (`LAM_SCALE` before it, or without a noise estimate).
     warm_discrepancy : float or None
         D₀ after the call (None while unknown, or without a noise estimate).
+    floored : bool
+        The floor set λ (after the call).
+    noise_level_lam : float or None
+        The noise-level rule's λ alone, before the floor (after the call; None before it).
 
     Examples
     --------
@@ -64,18 +84,29 @@ class DiscrepancyRule:
     (1.2, 5.0, 0.6)
     >>> round(rule(950.0), 6), round(rule.factor, 6)  # D₀ = 95: raised by (95 / 9.5) ** 0.25
     (2.133935, 1.066968)
+    >>> low = DiscrepancyRule(image_noise=2.0, noise_norm=10.0, reach_unit=1e4)  # a peak far above s
+    >>> round(low(50.0), 6), round(low.factor, 6), low.floored, low.noise_level_lam  # 3e-4 · 1e4 = 3 > 1.2
+    (3.0, 1.5, True, 1.2)
     """
 
-    def __init__(self, image_noise: float, noise_norm: float):
-        self.image_noise, self.noise_norm = image_noise, noise_norm
+    def __init__(self, image_noise: float, noise_norm: float, reach_unit: float = 0.0):
+        self.image_noise, self.noise_norm, self.reach_unit = image_noise, noise_norm, reach_unit
         self.factor: float = LAM_SCALE
         self.warm_discrepancy: float | None = None
+        self.floored = False
+        self.noise_level_lam: float | None = None
 
     def __call__(self, start_residual: float) -> float:
         d0 = start_residual / self.noise_norm if self.noise_norm > 0 else math.inf
         if math.isfinite(d0):
             self.warm_discrepancy, self.factor = d0, LAM_SCALE * max(1.0, (d0 / LAM_KNEE) ** LAM_POWER)
-        return self.image_noise * self.factor
+        lam = self.noise_level_lam = self.image_noise * self.factor
+        floor = REACH_FLOOR * self.reach_unit if math.isfinite(self.reach_unit) else 0.0
+        self.floored = bool(self.image_noise > 0 and floor > lam)
+        if self.floored:
+            lam = floor
+            self.factor = lam / self.image_noise
+        return lam
 
 
 class Continuation:

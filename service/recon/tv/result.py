@@ -93,6 +93,9 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
                   extent_reason=chosen.extent_reason, whole_record=bool(o["whole_record"]))
     params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(lam_auto),
                   lam_factor=rule.factor if lam_auto else None, warm_discrepancy=rule.warm_discrepancy,
+                  lam_floored=bool(lam_auto and rule.floored),
+                  lam_noise_level=rule.noise_level_lam if lam_auto else None,
+                  prox_reach=float(lam) / rule.reach_unit if rule.reach_unit > 0 else None,
                   lam_start_factor=schedule.start_factor if schedule else 1.0,
                   continuation_iterations=schedule.iterations if schedule else 0,
                   stop_armed_at=((schedule.iterations if schedule else 0) + WINDOW) if o["tol"] > 0 else None,
