@@ -12,13 +12,13 @@ the image's error is mostly undersampling artefacts, which D₀ measures, and λ
 with it.
 
 The reach floor: the automatic λ is at least `REACH_FLOOR` · L · max x₀ (L the step's 1 / step
-size, `fpscan.service.recon.tv.fista.MARGIN` ‖BA‖; x₀ the warm start). Each iteration's proximal step weighs TV by λ / L, so ρ =
-λ / (L max x₀) is how far TV can reshape the image in one iteration relative to its peak; the
-directions the sparse data leave to TV move by about that much a step. Where the noise is low, the
-noise-level rule's λ gives ρ of 1e-5 to 1e-4, and the image at the stopping rule is still far from
-J's minimiser at that λ (0.015-0.06 CC below its 300-iteration image), while a stronger weight both
-lifts the stopped image and stops it near its own minimiser. What sets `REACH_FLOOR`:
-docs/tv-measurements.md, "Automatic λ".
+size, `fpscan.service.recon.tv.fista.MARGIN` ‖BA‖; x₀ the warm start). Each iteration's proximal
+step weighs TV by λ / L, so ρ = λ / (L max x₀) is how far TV can reshape the image in one
+iteration relative to its peak; the directions the sparse data leave to TV move by about that much
+a step. Where the noise is low, the noise-level rule's λ gives ρ of 2e-5 to 2e-4, and the image at
+the stopping rule is still far from J's minimiser at that λ (up to 0.06 CC below its 300-iteration
+image), while a stronger weight both lifts the stopped image and stops it near its own minimiser.
+What sets `REACH_FLOOR`: docs/tv-measurements.md, "Automatic λ".
 
 Continuation (``continuation=True``): iteration k takes its proximal step with λ_k = λ ·
 max(1, D₀ · `CONTINUATION_RATE` ** (k − 1)) (`Continuation`), from λ D₀ down to λ, D₀ at
