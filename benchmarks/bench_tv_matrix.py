@@ -341,15 +341,18 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
     tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
 
-    def lam_of(dataset) -> dict:  # the probe --lam-reach: λ at least RHO · L · max x₀ (tv_lam_reach.py)
+    def lam_of(dataset) -> tuple[dict, bool | None]:
+        """The probe --lam-reach: λ at least RHO · L · max x₀ (tv_lam_reach.py), and whether it is
+        above the noise-level rule's λ (a floor set it); ({}, None) without the probe."""
         if probe["lam_reach"] is None:
-            return {}
+            return {}, None
         from fpscan import tv_problem
 
         problem = tv_problem(dataset, dtype="float32", **grid_opts)
-        return {"lam": max(problem.lam, probe["lam_reach"] * full_reach(problem))}
+        lam = max(problem.lam, probe["lam_reach"] * full_reach(problem))
+        return {"lam": lam}, lam > problem.params["lam_noise_level"]
 
-    lam_opt = lam_of(scan)
+    lam_opt, probe_floored = lam_of(scan)
     t = time.perf_counter()
     events: list[list] = []
     tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol, **lam_opt,
@@ -368,6 +371,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                extent=p["extent_reason"], pairs=p["operator_pairs"], iterations=p["iterations"],
                converged=p["converged"], stop=p.get("stop_reason"), lam=p["lam"],
                lam_factor=p["lam_factor"] if p["lam_factor"] is not None else p["lam"] / p["image_noise"],  # λ given
+               floored=p["lam_floored"] if probe_floored is None else probe_floored,
                tv_s=tv_s, ner_s=ner_seconds(data, dx, dt, c), events=events, **probe)
     if "scale" in case:  # a family member: its size and objects
         row.update(scale=case["scale"], member_seed=case["seed"], phantom=_family().describe(case))
@@ -379,7 +383,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
             seeds = {seed: row["seen"]}
             for other in range(seed + 1, seed + SEEN_SEEDS):
                 other_scan = sparse_scan(case, mask, noise, other, declared)[1]
-                redrawn = reconstruct(other_scan, "tv", dtype="float32", **grid_opts, **tol, **lam_of(other_scan))
+                redrawn = reconstruct(other_scan, "tv", dtype="float32", **grid_opts, **tol, **lam_of(other_scan)[0])
                 seeds[other], _ = thin_segments_seen(redrawn.p0, lines, case["radius_voxels"])
             row["seen_seeds"], row["seen_mean"] = seeds, float(np.mean(list(seeds.values())))
     if reference:

@@ -131,10 +131,11 @@ def reports(row: dict, tol: float | None) -> tuple[list[tuple[float, float, obje
     from fpscan.service.recon.tv.stopping import typical_stop
 
     events = row["events"]
+    floored = bool(row.get("floored"))  # the reach floor set λ (rows from before it have no such key)
     if tol is None:  # each iteration's stage as tv makes it now (its typical stop from today's rule)
         made = [(e[0], e[1], e[2] if e[3] is None else
                  IterationStage(e[3], e[4], e[5], e[6], armed=e[7] is None or e[3] >= e[7], armed_at=e[7], text=e[2],
-                                typical_stop=None if e[7] is None or not e[6] else typical_stop(e[6], e[7])))
+                                typical_stop=None if e[7] is None or not e[6] else typical_stop(e[6], e[7], floored)))
                 for e in events]
         return made, row["tv_s"]
     setup = [(e[0], e[1], e[2]) for e in events if e[3] is None and e[1] < 0.1 + 1e-9]
@@ -151,7 +152,7 @@ def reports(row: dict, tol: float | None) -> tuple[list[tuple[float, float, obje
     for t in row["trace"]:
         k, s, _, _, rule, _ = t
         made.append((s + shift, 0.1 + 0.9 * k / n, IterationStage(k, n, rule, tol, armed=k >= at, armed_at=at,
-                                                                  typical_stop=typical_stop(tol, at))))
+                                                                  typical_stop=typical_stop(tol, at, floored))))
         if k == stop:
             break
     return made, made[-1][0]

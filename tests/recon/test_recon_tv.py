@@ -166,15 +166,18 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
     start misses the data by far more than the noise, so λ is several image noise levels; and λ is at
     least the reach floor, `REACH_FLOOR` of L · max x₀ (L = `MARGIN` ‖BA‖ before the first iteration,
-    x₀ that warm start)."""
+    x₀ that warm start), where the progress's ETA counts to the floored runs' typical stop."""
     from fpscan.physics.forward import forward_points
+    from fpscan.service.progress import IterationStage
     from fpscan.service.recon.tv.fista import MARGIN
     from fpscan.service.recon.tv.lam import LAM_KNEE, LAM_POWER, LAM_SCALE, REACH_FLOOR
+    from fpscan.service.recon.tv.stopping import typical_stop
 
     b = balls_3d
     # at the record's own band (declared): the oracle's model is the direct sum at the record's sampling (the 2 DZ
     # pitch alone would have tv work at half that band, on the resampled record); D₀ is read before the iterations
-    auto = _tv_3d(b, bandwidth=0.5 / DT, max_iter=1)
+    stages: list = []
+    auto = _tv_3d(b, bandwidth=0.5 / DT, max_iter=1, progress=lambda fraction, stage: stages.append(stage))
     g = b["alines"]
     x = b["x"]
     warm = reconstruct_points(g, b["pos"], DT, C, weights=b["w"], grid=(x, x), n_z=b["n_z"], dz=DZ).p0
@@ -191,6 +194,9 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     assert p["lam_noise_level"] == pytest.approx(noise_rule, rel=2e-3)
     assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
     assert p["prox_reach"] >= REACH_FLOOR * (1 - 1e-9)
+    # a floored run's ETA counts to the floored runs' typical stop (they stop later)
+    iteration = [s for s in stages if isinstance(s, IterationStage)]
+    assert iteration and all(s.typical_stop == typical_stop(p["tol"], s.armed_at, p["lam_floored"]) for s in iteration)
 
 
 def test_memory_estimate_admits_by_method():

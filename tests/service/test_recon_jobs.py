@@ -307,7 +307,8 @@ def test_tv_job_progress_only_moves_forward_and_says_when_the_rule_can_stop(shar
         assert bool(continuing) == (k <= K) and (k > K or re.fullmatch(rf"iteration {k}/{max_iter}", p["stage"])
                                                   is None), p
         assert p["stop_armed_at"] == K + 3 and p["stop_armed"] == (k >= K + 3), p
-        assert p["stop_typical_at"] == typical_stop(used["tol"], K + 3) >= K + 3, p  # what its ETA takes while far
+        # what its ETA takes while far (later where the reach floor set λ)
+        assert p["stop_typical_at"] == typical_stop(used["tol"], K + 3, used["lam_floored"]) >= K + 3, p
         if p.get("iterations_left_max") is not None:  # the bound holds
             assert last <= k + p["iterations_left_max"], (last, p)
     low_since = None

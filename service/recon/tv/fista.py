@@ -224,8 +224,11 @@ def run_fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarr
     iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
     r0 = residual(Ax)
+    floored = False  # the reach floor set λ (the automatic λ's rule says so): the ETA's typical stop is later
     if callable(lam):  # λ from the start's residual ‖A x − g‖ (the automatic λ's rule)
-        lam = float(lam(r0))
+        rule = lam
+        lam = float(rule(r0))
+        floored = bool(getattr(rule, "floored", False))
     if continuation is not None:  # λ_k from λ D₀ down to λ (`Continuation`)
         continuation.start(r0, lam, max_iter)
     # y's memory takes the gradient step; x itself is not kept: x = y − β q b, with b the last
@@ -242,7 +245,8 @@ def run_fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarr
 
     J_prev = parts(Ax, y)  # the restart test's, at each iteration's λ_k
     # the stopping rule, whose window holds iterations at λ itself only (none of the continuation's)
-    stopping = StoppingRule(tol, max_iter, time_limit, continuation.iterations if continuation is not None else 0)
+    stopping = StoppingRule(tol, max_iter, time_limit, continuation.iterations if continuation is not None else 0,
+                            floored)
     stored = None  # the proximal map's dual between calls, in half the bytes (`store_dual`)
     it, stop_reason = 0, "iterations"
     xn = y  # for max_iter = 0, which the callers never ask

@@ -17,7 +17,7 @@ from collections import deque
 from fpscan.service.progress import IterationStage
 from fpscan.service.recon.limits import DEFAULT_TOL
 
-__all__ = ["WINDOW", "TYPICAL_STOP", "TYPICAL_POWER", "typical_stop", "StoppingRule"]
+__all__ = ["WINDOW", "TYPICAL_STOP", "TYPICAL_STOP_FLOORED", "TYPICAL_POWER", "typical_stop", "StoppingRule"]
 
 #: the stopping rule's window of iterations
 WINDOW = 3
@@ -25,14 +25,18 @@ WINDOW = 3
 #: grows as ``tol`` falls: TYPICAL_STOP × (DEFAULT_TOL / tol) ** TYPICAL_POWER (measured on k-Wave's
 #: scans: docs/tv-measurements.md, "The waiting phase, and what `tol` changes")
 TYPICAL_STOP = 50
+#: the same where the reach floor set λ (`fpscan.service.recon.tv.lam.REACH_FLOOR`): those runs take a
+#: stronger weight at low noise and stop later (measured on k-Wave's scans, as TYPICAL_STOP)
+TYPICAL_STOP_FLOORED = 60
 TYPICAL_POWER = 0.25
 
 
-def typical_stop(tol: float, armed_at: int) -> int | None:
+def typical_stop(tol: float, armed_at: int, floored: bool = False) -> int | None:
     """The iteration at which tv's runs typically stop at ``tol`` (`TYPICAL_STOP` at the default,
-    × (default / ``tol``) ** `TYPICAL_POWER`), never before ``armed_at``, the first iteration the
-    rule can stop at; None at ``tol`` 0 (the rule never stops the run). What the progress's ETA
-    takes while the image change is far from ``tol`` (`fpscan.service.progress.Eta`).
+    `TYPICAL_STOP_FLOORED` where the reach floor set λ, × (default / ``tol``) ** `TYPICAL_POWER`),
+    never before ``armed_at``, the first iteration the rule can stop at; None at ``tol`` 0 (the rule
+    never stops the run). What the progress's ETA takes while the image change is far from ``tol``
+    (`fpscan.service.progress.Eta`).
 
     Parameters
     ----------
@@ -40,6 +44,8 @@ def typical_stop(tol: float, armed_at: int) -> int | None:
         The stopping rule's threshold (>= 0).
     armed_at : int
         The first iteration at which the rule can stop the run.
+    floored : bool, optional
+        The reach floor set the run's λ (`fpscan.service.recon.tv.lam.DiscrepancyRule.floored`).
 
     Returns
     -------
@@ -51,10 +57,13 @@ def typical_stop(tol: float, armed_at: int) -> int | None:
     >>> from fpscan.service.recon.tv.stopping import typical_stop
     >>> typical_stop(0.005, 10), typical_stop(0.0025, 10), typical_stop(0.005, 53), typical_stop(0.0, 10)
     (50, 59, 53, None)
+    >>> typical_stop(0.005, 10, floored=True)
+    60
     """
     if not tol > 0:
         return None
-    return max(int(armed_at), round(TYPICAL_STOP * (DEFAULT_TOL / tol) ** TYPICAL_POWER))
+    typical = TYPICAL_STOP_FLOORED if floored else TYPICAL_STOP
+    return max(int(armed_at), round(typical * (DEFAULT_TOL / tol) ** TYPICAL_POWER))
 
 
 class StoppingRule:
@@ -79,10 +88,12 @@ class StoppingRule:
     falling : int, optional
         The first iterations with λ_k > λ (the continuation's): the window must hold none of them
         before the rule can stop the run.
+    floored : bool, optional
+        The reach floor set λ: the stages' typical stop is `TYPICAL_STOP_FLOORED`'s (`typical_stop`).
 
     Attributes
     ----------
-    tol, max_iter, time_limit, falling
+    tol, max_iter, time_limit, falling, floored
         As given.
     steps : deque of float
         The relative changes of the last `WINDOW` iterations.
@@ -105,8 +116,9 @@ class StoppingRule:
     (53, 'iteration 7/100 (λ continuation 7/50)', False, 53)
     """
 
-    def __init__(self, tol: float, max_iter: int, time_limit: float, falling: int = 0) -> None:
+    def __init__(self, tol: float, max_iter: int, time_limit: float, falling: int = 0, floored: bool = False) -> None:
         self.tol, self.max_iter, self.time_limit, self.falling = tol, max_iter, time_limit, falling
+        self.floored = floored
         self.steps: deque[float] = deque(maxlen=WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
         self.change = float("nan")
 
@@ -134,7 +146,7 @@ class StoppingRule:
         text = f"iteration {k}/{self.max_iter} (λ continuation {k}/{self.falling})" if k <= self.falling else None
         return IterationStage(k, self.max_iter, max(self.steps), self.tol, armed=not waiting, text=text,
                               armed_at=self.armed_at if self.tol > 0 else None,
-                              typical_stop=typical_stop(self.tol, self.armed_at))
+                              typical_stop=typical_stop(self.tol, self.armed_at, self.floored))
 
     def verdict(self, k: int, elapsed: float) -> str | None:
         if 0.0 <= self.change < self.tol and self.at_lambda(k):
