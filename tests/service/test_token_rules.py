@@ -236,7 +236,8 @@ def test_no_token_is_an_explicit_choice_on_loopback_only(tmp_path):
         assert _get(srv.url, None, path="/api/auth").json()["token_required"] is False
     finally:
         srv.stop()
-    p = _serve(tmp_path, "--no-token", "--token", TOKEN)
+    # "--token=…": a token_urlsafe token starts with "-" one time in 64, which argparse would take for an option
+    p = _serve(tmp_path, "--no-token", f"--token={TOKEN}")
     assert p.returncode == 2 and "no_token" in p.stderr, p.stderr
     p = _serve(tmp_path, "--no-token", "--host", "0.0.0.0")
     assert p.returncode == 2 and "beyond loopback" in p.stderr, p.stderr
