@@ -13,7 +13,8 @@ the k-Wave files):
   0.5: a 113² lattice of 60 µm, 512 samples of 8 ns, three balls 1.4-2.2 mm deep), exact A-lines;
 - ``family``: the 24 half-size members of `tv_family` (seeded mixes of balls and vessel segments 1.5-6
   mm deep on the paper's 113² lattice, exact A-lines), ``family-full``: its 3 members at the paper's
-  full size (226²), or single members by name (``family-07``, ``family-full-1``). Each member is one
+  full size (226²), ``family-holdout``: its 8 held-out half-size members (no default was chosen on
+  them), or single members by name (``family-07``, ``family-full-1``, ``family-holdout-3``). Each member is one
   row with its own mask and noise (`tv_family.COMBOS`; ``--masks`` and ``--noise`` select among
   them), its noise seeded by ``--seed`` + the member's seed.
 
@@ -91,7 +92,7 @@ SHARED = Path(os.environ.get("FPSCAN_SHARED", Path(__file__).resolve().parents[1
 FILES = {"vessels": "kwave3d_vessel_tree.h5", "balls": "kwave3d_balls_yarn.h5", "points": "kwave2d_points.h5"}
 CASES = ("vessels", "balls", "points", "paper")
 #: the phantom family's groups of members (module doc; `tv_family`)
-FAMILY_GROUPS = ("family", "family-full")
+FAMILY_GROUPS = ("family", "family-full", "family-holdout")
 MASKS = (4, 11)
 NOISE = ("peak20", "peak30", "peak40", "rms30")
 #: the gate (module doc)
@@ -174,11 +175,15 @@ def _family():
 
 
 def family_members(groups) -> list[str]:
-    """The members named by ``groups`` (``family``: every half-size member, ``family-full``: every
-    full-size one, or a member's name), in the family's order, each once."""
+    """The members named by ``groups`` (``family``: every half-size member but the held-out ones,
+    ``family-full``: every full-size one, ``family-holdout``: every held-out one, or a member's name), in
+    the family's order, each once."""
     members = _family().MEMBERS
-    wanted = {m for g in groups for m in members
-              if m == g or (g == "family" and not m.startswith("family-full")) or (g == "family-full" and m.startswith(g))}
+
+    def group(m: str) -> str:
+        return "family-full" if m.startswith("family-full") else "family-holdout" if m.startswith("family-holdout") else "family"
+
+    wanted = {m for g in groups for m in members if m == g or g == group(m)}
     return [m for m in members if m in wanted]
 
 

@@ -6,6 +6,10 @@ Every member is one scan of the paper's kind (`bench_tv_paper`: c = 1500 m/s, a 
 
 - **size**: `HALF` members at half the paper's lattice (113², 6.78 mm a side) and `FULL` at its full
   size (226², 13.56 mm), named ``family-00`` ... and ``family-full-0`` ...;
+- **held out**: `HOLDOUT` more half-size members, ``family-holdout-0`` ..., made by the same rules
+  (indices `HALF` ... at half size, so seeds 1024 ...; member j has the j-th of `COMBOS`, every mask ×
+  noise once). No default was chosen on them: a choice made by measuring the family (a threshold, a
+  cap) is judged on them (``bench_tv_matrix.py --cases family-holdout``);
 - **objects** (`family_objects`, numpy's ``default_rng(seed)``; the seed is 1000 + index at half size
   and 2000 + index at full size): 1-4 uniform balls of radius 0.1-0.4 mm and 1-3 vessel segments of
   radius 0.05-0.2 mm and length 1-3 mm, half of them straight and half bent (a quadratic Bézier curve
@@ -48,6 +52,8 @@ from bench_tv_paper import DT, PITCH, C  # the paper's sampling (one owner)
 
 #: members at half the paper's lattice (113²) and at its full size (226²)
 HALF, FULL = 24, 3
+#: held-out half-size members (module doc): indices HALF ... HALF + HOLDOUT - 1 at half size
+HOLDOUT = 8
 #: (mask %, noise) of every combination; half-size member i takes COMBOS[i % 8]
 COMBOS = tuple((m, n) for n in ("peak20", "peak30", "peak40", "rms30") for m in (4, 11))
 #: the full-size members' (mask %, noise): module doc
@@ -59,16 +65,19 @@ VESSEL_LENGTH = (1.0e-3, 3.0e-3)
 AMPLITUDE = (0.5, 1.0)
 #: a vessel's chain of balls: centres at most this many radii apart along the centre line
 VESSEL_STEP = 0.5
-MEMBERS = tuple([f"family-{i:02d}" for i in range(HALF)] + [f"family-full-{j}" for j in range(FULL)])
+MEMBERS = tuple([f"family-{i:02d}" for i in range(HALF)] + [f"family-full-{j}" for j in range(FULL)]
+                + [f"family-holdout-{j}" for j in range(HOLDOUT)])
 
 
 def member(name: str) -> tuple[int, float]:
-    """``(index, scale)`` of a member's name (``family-07``: 7, 0.5; ``family-full-1``: 1, 1.0);
-    ValueError for another name."""
-    m = re.fullmatch(r"family-(full-)?(\d+)", name)
-    if m is None or int(m[2]) >= (FULL if m[1] else HALF):
-        raise ValueError(f"not a member of the family: {name!r} (members: {MEMBERS[0]} ... {MEMBERS[-1]})")
-    return int(m[2]), 1.0 if m[1] else 0.5
+    """``(index, scale)`` of a member's name (``family-07``: 7, 0.5; ``family-full-1``: 1, 1.0;
+    ``family-holdout-2``: `HALF` + 2, 0.5); ValueError for another name."""
+    m = re.fullmatch(r"family-(?:(full|holdout)-)?(\d+)", name)
+    count = {"full": FULL, "holdout": HOLDOUT}.get(m[1], HALF) if m is not None else 0
+    if m is None or int(m[2]) >= count or (m[1] is None and len(m[2]) != 2):
+        raise ValueError(f"not a member of the family: {name!r} (members: family-00 ... family-{HALF - 1}, "
+                         f"family-full-0 ... {FULL - 1}, family-holdout-0 ... {HOLDOUT - 1})")
+    return (int(m[2]), 1.0) if m[1] == "full" else (int(m[2]) + (HALF if m[1] == "holdout" else 0), 0.5)
 
 
 def member_scan(index: int, scale: float) -> tuple[int, str]:
@@ -200,7 +209,7 @@ def family_case(index: int, scale: float = 0.5) -> dict:
 
     if scale not in (0.5, 1.0):
         raise ValueError(f"the family's members are at scale 0.5 or 1, got {scale}")
-    count = HALF if scale == 0.5 else FULL
+    count = HALF + HOLDOUT if scale == 0.5 else FULL
     if not 0 <= index < count:
         raise ValueError(f"index must be 0 ... {count - 1} at scale {scale}, got {index}")
     seed = member_seed(index, scale)
@@ -214,7 +223,8 @@ def family_case(index: int, scale: float = 0.5) -> dict:
     weight = np.array([b.amplitude * b.radius**3 for b in balls])  # each ball's p0 integral / (4π/3)
     depth = float(np.dot(weight, [b.z for b in balls]) / weight.sum())
     mask, noise = member_scan(index, scale)
-    name = f"family-{index:02d}" if scale == 0.5 else f"family-full-{index}"
+    name = (f"family-full-{index}" if scale == 1.0 else f"family-{index:02d}" if index < HALF
+            else f"family-holdout-{index - HALF}")
     return dict(name=name, clean=clean, p0=None, balls=balls, objects=objects, dt=DT, dx=PITCH, dz=None, c=C,
                 poi_depth=depth, mask=mask, noise=noise, seed=seed, scale=scale)
 

@@ -50,6 +50,13 @@ def test_the_family_is_seeded_and_covers_every_mask_and_noise(family):
     assert family.member("family-full-2") == (2, 1.0) and family.member("family-07") == (7, 0.5)
     with pytest.raises(ValueError, match="not a member"):
         family.member(f"family-{family.HALF}")
+    # the held-out members: the same rules, their own seeds, every mask × noise once
+    held = [family.member(f"family-holdout-{j}") for j in range(family.HOLDOUT)]
+    assert held[2] == (family.HALF + 2, 0.5) and family.HOLDOUT == len(combos)
+    assert {family.member_scan(i, s) for i, s in held} == combos
+    assert family.family_case(*held[0])["name"] == "family-holdout-0"
+    with pytest.raises(ValueError, match="not a member"):
+        family.member(f"family-holdout-{family.HOLDOUT}")
 
 
 def test_every_member_mixes_balls_and_vessels_in_range_with_a_record_that_reaches_them(family):
@@ -131,7 +138,9 @@ def test_balls_p0_is_ball_p0(family):
 
 def test_the_matrix_runs_the_family_and_gates_its_stop_and_full_size_budget():
     bench = _load("bench_tv_matrix")
-    assert bench.family_members(["family"]) == [f"family-{i:02d}" for i in range(24)]
+    assert bench.family_members(["family"]) == [f"family-{i:02d}" for i in range(24)]  # not the held-out ones
+    assert bench.family_members(["family-holdout", "family-01"]) == ["family-01"] + [
+        f"family-holdout-{j}" for j in range(8)]
     assert bench.family_members(["family-full", "family-03", "family"])[-3:] == [
         "family-full-0", "family-full-1", "family-full-2"]
     row = dict(case="family-full-0", mask=4, noise="peak20", tv=0.95, ner=0.8, converged=True, iterations=60,
