@@ -324,11 +324,8 @@ def problem_of(parts: SetUp, record: Record, lam: float | None, positivity: bool
 
     preconditioner = pylops.FunctionOperator(weight, weight, n, n, dtype=model.dtype, name="P")
     gradient = pylops.Gradient(shape, sampling=1.0, edge=False, kind="forward", dtype=model.dtype)
-    params = dict(lam_auto=lam is None, image_noise=rule.image_noise, warm_discrepancy=rule.warm_discrepancy,
-                  lam_factor=rule.factor if lam is None else None, lam_floored=lam is None and rule.floored,
-                  lam_noise_level=rule.noise_level_lam if lam is None else None,
-                  prox_reach=value / rule.reach_unit if rule.reach_unit > 0 else None, noise_sigma=record.sigma,
-                  warm_residual=residual, step_gain=parts.gain)
+    params = dict(rule.params(value, lam is None), noise_sigma=record.sigma, warm_residual=residual,
+                  step_gain=parts.gain)
     return TvProblem(operator=model.op, data=record.g, warm_start=start, grid=record.grid, lam=value,
                      positivity=bool(positivity), z=warm.z, x=warm.x, y=warm.y, gradient=gradient,
                      preconditioner=preconditioner, params=params)

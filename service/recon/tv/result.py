@@ -42,7 +42,7 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
     solved : Solved
         The solver's outcome (`fpscan.service.recon.tv.fista.Solved`).
     rule : DiscrepancyRule
-        The automatic λ's rule (its ``factor``, ``warm_discrepancy``, ``image_noise``).
+        The automatic λ's rule (`fpscan.service.recon.tv.lam.DiscrepancyRule.params`: how λ came about).
     schedule : Continuation or None
         λ's continuation.
     options : dict
@@ -91,16 +91,11 @@ def result_params(warm_params: dict[str, Any], record: Record, model: Model, sol
     params.update(dt=o["dt"], operator_dt=chosen.dt, operator_n_t=record.n_t, band=chosen.band,
                   band_reason=chosen.reason, bandwidth=o["bandwidth"], record_n_t=chosen.record_n_t,
                   extent_reason=chosen.extent_reason, whole_record=bool(o["whole_record"]))
-    params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(lam_auto),
-                  lam_factor=rule.factor if lam_auto else None, warm_discrepancy=rule.warm_discrepancy,
-                  lam_floored=bool(lam_auto and rule.floored),
-                  lam_noise_level=rule.noise_level_lam if lam_auto else None,
-                  prox_reach=float(lam) / rule.reach_unit if rule.reach_unit > 0 else None,
+    params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), **rule.params(lam, lam_auto),
                   lam_start_factor=schedule.start_factor if schedule else 1.0,
                   continuation_iterations=schedule.iterations if schedule else 0,
                   stop_armed_at=((schedule.iterations if schedule else 0) + WINDOW) if o["tol"] > 0 else None,
-                  noise_sigma=record.sigma, image_noise=rule.image_noise,
-                  noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
+                  noise_sigma=record.sigma, noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
                   max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
                   norm_A=L / MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
