@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     assert local["params"]["device"] == (args.device if args.device != "auto" else local["params"]["device"])
 
     data_dir = Path(tempfile.mkdtemp(prefix="gpu-check-server-"))
-    os.environ["FPSCAN_TOKEN"] = token = secrets.token_urlsafe(32)  # the server's and the CLI client's
+    os.environ["FPSCAN_TOKEN"] = token = secrets.token_hex(32)  # the server's and the CLI client's
     server = subprocess.Popen([*FPSCAN, "serve", "--port", str(args.port), "--data-dir", str(data_dir),
                                "--workers", "2", "--log-level", "warning"],
                               stdout=open(out / "server.log", "w"), stderr=subprocess.STDOUT)

@@ -29,8 +29,10 @@ LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
 #: otherwise (``allow_weak_token``): 128 bits, the security strength NIST SP 800-57 Part 1 (Rev. 5),
 #: Table 2, asks of keys used beyond 2030
 MIN_TOKEN_BITS = 128
-#: the command that makes a token of 256 random bits (43 characters of base64url; ``secrets.token_urlsafe``)
-TOKEN_RECIPE = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
+#: the command that makes a token of 256 random bits (64 hexadecimal digits; ``secrets.token_hex``, as
+#: Jupyter Server's tokens): hexadecimal, so that it never starts with "-", which a command line
+#: (``--token``) would take for an option, and needs no quoting in a URL or a shell
+TOKEN_RECIPE = "python3 -c 'import secrets; print(secrets.token_hex(32))'"
 
 #: character classes of a token and their sizes (:func:`token_entropy_bits`): a class counts
 #: whole once one of its characters is in the token

@@ -239,7 +239,7 @@ class Demo:
         from fpscan.clients.http import Client
         from fpscan.clients.processes import start_service
 
-        token = secrets.token_urlsafe(32)
+        token = secrets.token_hex(32)  # the server's TOKEN_RECIPE
         srv = start_service((self.out / "server-data").resolve(), token=token, devices={"sim": device},
                             env={"FPSCAN_EXECUTOR": "local"}, log_path=self.out / "logs" / "server.log",
                             timeout=90)

@@ -275,7 +275,7 @@ def _token_rules(settings: Any) -> tuple[Any, str | None]:
     """The token rules of ``fpscan serve``: a token given must have at least
     ``MIN_TOKEN_BITS`` of estimated entropy (``token_entropy_bits``) unless
     ``allow_weak_token``; none given (and not ``no_token``), one is made
-    (``secrets.token_urlsafe(32)``: 256 random bits), as Jupyter Server does. Returns the
+    (``secrets.token_hex(32)``: 256 random bits, ``TOKEN_RECIPE``'s), as Jupyter Server does. Returns the
     settings (with the made token) and the made token (None when none was made).
 
     Raises
@@ -293,7 +293,7 @@ def _token_rules(settings: Any) -> tuple[Any, str | None]:
         return settings, None
     token = settings.token_value()  # reads token_file: an unreadable one is refused here
     if token is None:
-        made = secrets.token_urlsafe(32)
+        made = secrets.token_hex(32)  # TOKEN_RECIPE's: never starts with "-" (a command line's option)
         return settings.model_copy(update={"token": SecretStr(made)}), made
     bits = token_entropy_bits(token)
     if bits < MIN_TOKEN_BITS and not settings.allow_weak_token:

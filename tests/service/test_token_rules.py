@@ -173,7 +173,7 @@ def test_a_weak_token_is_refused_with_one_line(argv, env, tmp_path):
     p = _serve(tmp_path, *argv, **env)
     assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
     lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1 and "weak" in lines[0] and "secrets.token_urlsafe(32)" in lines[0] \
+    assert len(lines) == 1 and "weak" in lines[0] and "secrets.token_hex(32)" in lines[0] \
         and "--allow-weak-token" in lines[0], p.stderr
     assert token not in lines[0]  # the token itself is not echoed to a log
     assert not (tmp_path / "data" / "jobs.sqlite").exists()
@@ -212,7 +212,7 @@ def test_without_a_token_one_is_made_printed_and_required(tmp_path):
         assert found is not None, proc.log_tail()
         _, shown_port, token, exported = found.groups()
         assert int(shown_port) == port and token == exported
-        assert token_entropy_bits(token) >= MIN_TOKEN_BITS and len(token) == 43  # secrets.token_urlsafe(32)
+        assert token_entropy_bits(token) >= MIN_TOKEN_BITS and re.fullmatch(r"[0-9a-f]{64}", token)  # token_hex(32)
         url = f"http://127.0.0.1:{port}"
         while True:  # until it answers
             try:
