@@ -194,7 +194,8 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     assert p["lam_noise_level"] == pytest.approx(noise_rule, rel=2e-3)
     assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
     assert p["prox_reach"] >= REACH_FLOOR * (1 - 1e-9)
-    # a floored run's ETA counts to the floored runs' typical stop (they stop later)
+    # a floored run's ETA counts to the floored runs' typical stop (they stop later): this case is floored
+    assert p["lam_floored"], p
     iteration = [s for s in stages if isinstance(s, IterationStage)]
     assert iteration and all(s.typical_stop == typical_stop(p["tol"], s.armed_at, p["lam_floored"]) for s in iteration)
 
