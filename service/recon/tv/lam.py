@@ -22,7 +22,8 @@ What sets `REACH_FLOOR`: docs/tv-measurements.md, "Automatic λ".
 
 Continuation (``continuation=True``): iteration k takes its proximal step with λ_k = λ ·
 max(1, D₀ · `CONTINUATION_RATE` ** (k − 1)) (`Continuation`), from λ D₀ down to λ, D₀ at
-least 1 and capped so that λ is reached within half of ``max_iter``; the restart test
+least 1 and capped so that λ is reached within `CONTINUATION_MAX` iterations and half of
+``max_iter``; the restart test
 compares J at λ_k, and the stopping rule's window holds iterations at λ itself only
 (`fpscan.service.recon.tv.stopping`). The calibration of the scale, knee and power, and the
 continuation's measurements: docs/tv-measurements.md, "Automatic λ" and "Continuation".
@@ -31,7 +32,8 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "REACH_FLOOR", "CONTINUATION_RATE", "DiscrepancyRule", "Continuation"]
+__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "REACH_FLOOR", "CONTINUATION_RATE", "CONTINUATION_MAX",
+           "DiscrepancyRule", "Continuation"]
 
 #: the automatic λ = image noise level × LAM_SCALE × max(1, (D₀ / LAM_KNEE) ** LAM_POWER),
 #: D₀ the warm start's discrepancy over the noise's norm (module doc; calibrated on
@@ -43,6 +45,11 @@ LAM_POWER = 0.25
 #: this share of the warm start's peak (module doc)
 REACH_FLOOR = 3e-4
 CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (module doc)
+#: the continuation's iterations at most (half of ``max_iter`` where that is fewer): the cap on
+#: noiseless data, where D₀ is in the thousands; it was half the default ``max_iter`` of 100 when
+#: the continuation was measured (docs/tv-measurements.md, "Continuation") and stays 50 for any
+#: larger ``max_iter``, so that a higher iteration cap lets a run go on without changing its start
+CONTINUATION_MAX = 50
 
 
 class DiscrepancyRule:
@@ -146,8 +153,8 @@ class DiscrepancyRule:
 class Continuation:
     """λ continuation (module doc): iteration k proximal-steps with λ_k = λ · max(1, f₀ ·
     `CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the warm start's
-    discrepancy in noise norms, at least 1) down to λ, in at most half of ``max_iter``
-    iterations (f₀ is capped there).
+    discrepancy in noise norms, at least 1) down to λ, in at most `CONTINUATION_MAX` iterations
+    and half of ``max_iter`` (f₀ is capped there).
 
     Parameters
     ----------
@@ -172,6 +179,10 @@ class Continuation:
     (4.0, 14, 4.0, 1.0)
     >>> c.start(40.0, 0.0, max_iter=100); c.start_factor  # λ = 0: nothing to continue
     1.0
+    >>> c.start(58000.0, 0.1, max_iter=150); c.iterations  # D₀ = 5800 (noiseless): capped at 50
+    50
+    >>> c.start(58000.0, 0.1, max_iter=40); c.iterations  # and at half of max_iter
+    20
     """
 
     def __init__(self, noise_norm: float):
@@ -183,11 +194,12 @@ class Continuation:
         if not (lam > 0 and math.isfinite(d0) and d0 > 1):
             self.start_factor, self.iterations = 1.0, 0
             return
-        # in logs: the cap r^−(max_iter // 2) overflows a float for the largest max_iter
-        self.start_factor = math.exp(min(math.log(d0), (max_iter // 2) * -math.log(CONTINUATION_RATE)))
-        # iterations k with f₀ r^(k−1) > 1
-        self.iterations = (math.ceil(math.log(self.start_factor) / -math.log(CONTINUATION_RATE))
-                           if self.start_factor > 1 else 0)
+        # in logs: the cap r^−K, K = min(CONTINUATION_MAX, max_iter // 2)
+        cap = min(CONTINUATION_MAX, max_iter // 2)
+        steps = math.log(d0) / -math.log(CONTINUATION_RATE)  # the iterations D₀ alone would take
+        self.start_factor = math.exp(min(steps, cap) * -math.log(CONTINUATION_RATE))
+        # iterations k with f₀ r^(k−1) > 1 (the cap itself where it binds: no rounding past it)
+        self.iterations = cap if steps >= cap else math.ceil(steps)
 
     def factor(self, k: int) -> float:
         return max(1.0, self.start_factor * CONTINUATION_RATE ** (k - 1))
