@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpscan.physics.fast_lengths import fast_dct1_rows, fast_lateral
+from fpscan.physics import fft_engine
+from fpscan.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_real_shape
 
 __all__ = ["KWAVE_STEP_BYTES", "TEMPORAL_STEPS", "planar_peak", "kwave_peak", "band_columns",
            "model_based_peak", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory"]
@@ -325,22 +326,27 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     (`fpscan.service.recon.tv.stores.store_dual`), beside the operator's working arrays in its working
     precision (complex64 for float32, complex128 for float64;
     `fpscan.service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
-    max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal
-    steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
+    max(n_z, n_t) per padded half-spectrum column (every column: the lateral transforms write them all,
+    and a band limit skips columns in the depth and temporal steps only), beside one chunk of columns
+    in the depth and temporal steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
     `fpscan.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
-    longer: the steps hold two of them at a time) and one batch of full lateral spectra of
-    the point NUFFTs. While the proximal map works: 2 + d + d/2 vectors (the gradient step,
+    longer: the steps hold two of them at a time), one batch of full lateral spectra of
+    the point NUFFTs and one slab of the lateral transforms (`fpscan.physics.fft_engine.SLAB_BYTES`).
+    While the proximal map works: 2 + d + d/2 vectors (the gradient step,
     the preconditioned gradient, the dual at full precision beside the stored one,
     `fpscan.service.recon.tv.prox.tv_prox_stored`), the move and, in the exact phase, the gradient
     kept for the next gain test in int16, beside the operator's arrays that the work-array pool keeps
     for its next application (those of at least `fpscan.physics.workspace.MIN_BYTES`). The
-    preconditioner P is computed where it is applied, on the image padded to fast lengths
-    after the operator's k-space is free again. Both phases add the data-sized vectors (the data
+    preconditioner P is computed where it is applied, on the image padded to fast lengths. The pool
+    keeps every array it has lent, so each phase also holds the other's pooled arrays, free: the
+    operator's phase the dual at full precision and P's padded image, the proximal map's P's padded
+    image. Both phases add the data-sized vectors (the data
     in float64, A x, A y and a residual in ``dtype``), and the estimate 10 % (allocator, FFT
-    buffers and plans: the measured peak was 0.97-1.08 of the count on the paper's scan, whole
-    and cut, and the two tv cases of tests/service/test_memory_admission.py, so that with the
-    method's ``memory_calibration`` all four land within (1, 1.25] of it; 15 % put the paper's
-    whole record at 1.26).
+    buffers and plans). With the method's ``memory_calibration`` the estimate was 1.06-1.14 of the
+    peak measured on five full-size scans (the paper's, cut and whole record; the three full-size
+    members of tv's phantom family, `benchmarks/tv_family.py`) and 1.09-1.38 on the three smaller
+    cases of tests/service/test_memory_admission.py (the most where the sensors sit on the lattice's
+    nodes, which need no batch of full spectra).
 
     Parameters
     ----------
@@ -378,20 +384,33 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
     nz2, ny2, nx2 = padded_shape
-    cols = ny2 * (nx2 // 2 + 1) if kept_columns is None else max(1, int(kept_columns))
+    every = ny2 * (nx2 // 2 + 1)  # the k-space's columns: the lateral transforms write every one
+    cols = every if kept_columns is None else max(1, int(kept_columns))  # those the depth and temporal steps work on
     fine = grid_length(n_t)
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
-    # the k-space, a chunk's fine-grid and depth arrays, a batch of full lateral spectra (complex)
-    parts = (2 * b * cols * max(image_shape[0], n_t), 2 * b * chunk * fine, 2 * b * chunk * max(nz2, n_t),
-             2 * b * 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
+    # the k-space, a chunk's fine-grid and depth arrays, a batch of full lateral spectra (complex), and one
+    # slab of the lateral transforms' padded rows (`fpscan.physics.fft_engine.SLAB_BYTES`, real)
+    rows = max(image_shape[0], n_t) * image_shape[1] * nx2 * b
+    parts = (2 * b * every * max(image_shape[0], n_t), 2 * b * chunk * fine, 2 * b * chunk * max(nz2, n_t),
+             2 * b * 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2,
+             min(rows, max(fft_engine.SLAB_BYTES, image_shape[1] * nx2 * b)))
     operator = sum(parts)
-    # those the work-array pool keeps between applications (`fpscan.physics.workspace.MIN_BYTES`)
-    kept = sum(p for p in parts if p >= workspace.MIN_BYTES)
+
+    def pooled(nbytes: int) -> int:  # kept by the work-array pool once lent (`fpscan.physics.workspace.MIN_BYTES`)
+        return nbytes if nbytes >= workspace.MIN_BYTES else 0
+
+    kept = sum(pooled(p) for p in parts)
+    # the preconditioner's image padded to fast lengths, and the proximal map's dual at full precision:
+    # lent by the pool in their own phase and kept, free, through the other
+    padded = fast_real_shape(tuple(int(n) for n in image_shape))
+    preconditioner = pooled(int(np.prod(padded)) * b) if tuple(padded) != tuple(image_shape) else 0
+    dual = d * n_img * b
     # y (or the new iterate), the adjoint's image, the stored dual, the last gradient, the last move and
     # (in the exact phase) the last proximal step's s as int16 (`tv.stores.store_gradient`, `tv.stores.store_move`)
-    with_operator = 2 * n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator
+    with_operator = (2 * n_img * b + d * n_img * b // 2 + 3 * 2 * n_img + operator + preconditioner
+                     + pooled(dual))
     # the gradient step, G(A y − g), the move and (in the exact phase) the gradient kept for the next gain
     # test as int16, the dual at full precision beside the stored one, beside the operator's arrays,
     # which the work-array pool keeps for the next application
-    proximal = 2 * n_img * b + 2 * 2 * n_img + d * n_img * b + d * n_img * b // 2 + kept
+    proximal = 2 * n_img * b + 2 * 2 * n_img + dual + d * n_img * b // 2 + kept + preconditioner
     return int(1.10 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))

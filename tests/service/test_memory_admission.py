@@ -134,13 +134,16 @@ ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e
 
 
 @needs_recon
-def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
+@pytest.mark.parametrize("n, n_t, n_pts", [(48, 256, 100), (96, 512, 1500)])
+def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak(n, n_t, n_pts):
     """The model-based operator pads its grid by the record's reach counted in pitches:
     with the input's pitch known, a coarse pitch needs less memory than the pitch-free
     (worst case dx = c·dt) estimate, and a real tv run's peak stays below it (peak RSS
     above the RSS before the run, with the kernel-compiling warm-up's peak reset:
-    /proc/self/clear_refs)."""
-    n, n_t, n_pts, dx = 48, 256, 100, 1e-4
+    /proc/self/clear_refs). The larger case's arrays are large enough for the work-array pool,
+    which keeps each phase's arrays through the other (an estimate without them was 0.89 of
+    its peak)."""
+    dx = 1e-4
     shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": n_pts, "dt": 2e-8, "sound_speed": 1500.0}
     params = {"method": "tv", "dtype": "float32"}
     worst = estimate_memory(shape, params)
@@ -361,7 +364,8 @@ def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
     used = m["peak"] - m["base"]
     print("tv on a cut record, estimate / measured peak:", round(estimate / used, 3), "(whole record's estimate:",
           round(whole / used, 3), ")")
-    # within 30 %: the estimate counts the operator's arrays that the work-array pool keeps
-    # through the proximal step at their full size (1.27 of the peak here, 1.04-1.15 on the case above)
-    assert 0 < used < estimate <= 1.30 * used, (used, estimate)
+    # within 40 %: the estimate counts the operator's arrays that the work-array pool keeps through the
+    # proximal step at their full size, every k-space column and a batch of full lateral spectra that
+    # sensors on the lattice's nodes, as here, do not use (1.38 of the peak here, 1.09-1.20 on the cases above)
+    assert 0 < used < estimate <= 1.40 * used, (used, estimate)
     assert estimate < whole

@@ -604,12 +604,12 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
 
 
 #: the memory admission's margin on tv's model (``fpscan.service.recon.memory.model_based_peak``, itself
-#: calibrated): a 48² x 256, 100-sensor run peaked at about 1/1.08 of it, the paper's scan at
-#: 1/1.12 (cut record) and 1/1.20 (whole) (tests/service/test_memory_admission.py, measured after
-#: a warm-up on a smaller input; benchmarks/bench_tv_paper.py; 1.15
-#: before the solver's TV part worked in place, 1.45 when the factor also had to
-#: cover the planar methods). The planar methods' models count their arrays phase by phase and
-#: need no factor (measured within 4-10 % at upsample 1-8; docs/api.md).
+#: calibrated): with it the estimate is 1.06-1.14 of the peak measured on five full-size scans (the
+#: paper's, cut and whole record, and the three full-size members of tv's phantom family) and
+#: 1.09-1.38 on the smaller cases of tests/service/test_memory_admission.py (measured after a warm-up
+#: on a smaller input; docs/performance.md; 1.15 before the solver's TV part worked in place, 1.45
+#: when the factor also had to cover the planar methods). The planar methods' models count their
+#: arrays phase by phase and need no factor (measured within 4-10 % at upsample 1-8; docs/api.md).
 MEMORY_CALIBRATION = 1.05
 
 
