@@ -299,12 +299,10 @@ def traced_run(scan, c: float, truth: np.ndarray, **options):
 
 
 def full_reach(problem) -> float:
-    """L · max x₀ (Pa) of a `fpscan.service.recon.tv.formulation.TvProblem`: the λ at which tv's
-    proximal step λ TV / L, L = `MARGIN` × its gain estimate, weighs TV by the warm start's peak x₀
-    (ρ = λ / that = 1; `tv_lam_reach.py`)."""
-    from fpscan.service.recon.tv.fista import MARGIN
-
-    return MARGIN * problem.params["step_gain"] * float(problem.warm_start.max())
+    """L · max x₀ (Pa) of a `fpscan.service.recon.tv.formulation.TvProblem` (its ``reach_unit``): the λ
+    at which tv's proximal step λ TV / L, L = `MARGIN` × its gain estimate, weighs TV by the warm
+    start's peak x₀ (ρ = λ / that = 1; `tv_lam_reach.py`)."""
+    return float(problem.params["reach_unit"])
 
 
 def sparse_scan(case: dict, mask, noise: str, seed: int, meta: dict):

@@ -193,7 +193,8 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     assert p["lam_floored"] == (floor > noise_rule)
     assert p["lam_noise_level"] == pytest.approx(noise_rule, rel=2e-3)
     assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
-    assert p["prox_reach"] >= REACH_FLOOR * (1 - 1e-9)
+    assert p["reach_unit"] == pytest.approx(floor / REACH_FLOOR, rel=2e-3)
+    assert p["prox_reach"] == pytest.approx(p["lam"] / p["reach_unit"], rel=1e-9) and p["prox_reach"] >= REACH_FLOOR * (1 - 1e-9)
     # a floored run's ETA counts to the floored runs' typical stop (they stop later): this case is floored
     assert p["lam_floored"], p
     iteration = [s for s in stages if isinstance(s, IterationStage)]

@@ -192,7 +192,8 @@ class TvProblem:
         How λ came about: ``lam_auto``, ``image_noise`` (s, Pa), ``warm_discrepancy`` (D₀),
         ``lam_factor`` (λ / s; None for a given λ), ``lam_floored`` (the automatic λ is the reach
         floor's), ``lam_noise_level`` (the noise-level rule's λ before the floor; None for a given λ),
-        ``prox_reach`` (ρ = λ / (L max x₀)), ``noise_sigma`` (σ̂, Pa), ``warm_residual``
+        ``reach_unit`` (L max x₀, Pa: the step's L times the warm start's peak), ``prox_reach`` (ρ = λ /
+        ``reach_unit``), ``noise_sigma`` (σ̂, Pa), ``warm_residual``
         (‖A x₀ − g‖, Pa) and ``step_gain`` (tv's ‖P AᵀA‖ estimate).
 
     Examples

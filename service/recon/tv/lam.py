@@ -118,9 +118,10 @@ class DiscrepancyRule:
     def params(self, lam: float, automatic: bool) -> dict:
         """How λ came about, as a result's ``params`` and `fpscan.tv_problem`'s say it (after the call):
         ``lam_auto``, ``image_noise`` (s, Pa), ``warm_discrepancy`` (D₀), ``lam_factor`` (λ / s),
-        ``lam_floored``, ``lam_noise_level`` (the noise-level rule's λ before the floor, Pa) and
-        ``prox_reach`` (ρ = λ / ``reach_unit``; None without one); the rule's own three are None
-        (``lam_floored`` False) for a λ given by the user.
+        ``lam_floored``, ``lam_noise_level`` (the noise-level rule's λ before the floor, Pa),
+        ``reach_unit`` (L · max x₀, Pa; None without one) and ``prox_reach`` (ρ = λ / ``reach_unit``;
+        None without one); the rule's own three are None (``lam_floored`` False) for a λ given by
+        the user.
 
         Parameters
         ----------
@@ -132,21 +133,22 @@ class DiscrepancyRule:
         Returns
         -------
         dict
-            The seven params.
+            The eight params.
 
         Examples
         --------
         >>> from fpscan.service.recon.tv.lam import DiscrepancyRule
         >>> rule = DiscrepancyRule(image_noise=2.0, noise_norm=10.0, reach_unit=1e4)
         >>> p = rule.params(rule(50.0), automatic=True)
-        >>> p["lam_floored"], p["lam_noise_level"], p["prox_reach"], round(p["lam_factor"], 6)
-        (True, 1.2, 0.0003, 1.5)
+        >>> p["lam_floored"], p["lam_noise_level"], p["reach_unit"], p["prox_reach"], round(p["lam_factor"], 6)
+        (True, 1.2, 10000.0, 0.0003, 1.5)
         >>> rule.params(0.5, automatic=False)["lam_factor"], rule.params(0.5, automatic=False)["prox_reach"]
         (None, 5e-05)
         """
         return dict(lam_auto=bool(automatic), image_noise=self.image_noise, warm_discrepancy=self.warm_discrepancy,
                     lam_factor=self.factor if automatic else None, lam_floored=bool(automatic and self.floored),
                     lam_noise_level=self.noise_level_lam if automatic else None,
+                    reach_unit=float(self.reach_unit) if self.reach_unit > 0 else None,
                     prox_reach=float(lam) / self.reach_unit if self.reach_unit > 0 else None)
 
 

@@ -166,8 +166,8 @@ def reconstruct_tv(
         ``image_noise``; None for a given λ), ``lam_note`` (only when the automatic λ is 0:
         why — noiseless data), ``warm_discrepancy`` (D₀, `fpscan.service.recon.tv.lam`),
         ``lam_floored`` (the automatic λ is the reach floor's), ``lam_noise_level`` (the noise-level
-        rule's λ before the floor), ``prox_reach`` (ρ = λ / (L max x₀), the proximal step's weight
-        relative to the warm start's peak),
+        rule's λ before the floor), ``reach_unit`` (L max x₀, Pa), ``prox_reach`` (ρ = λ / (L max
+        x₀), the proximal step's weight relative to the warm start's peak),
         ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
         continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
         λ), ``stop_armed_at`` (the first iteration at which the stopping rule could stop the run:
