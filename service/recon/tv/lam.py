@@ -120,8 +120,8 @@ class DiscrepancyRule:
         ``lam_auto``, ``image_noise`` (s, Pa), ``warm_discrepancy`` (D₀), ``lam_factor`` (λ / s),
         ``lam_floored``, ``lam_noise_level`` (the noise-level rule's λ before the floor, Pa),
         ``reach_unit`` (L · max x₀, Pa; None without one) and ``prox_reach`` (ρ = λ / ``reach_unit``;
-        None without one); the rule's own three are None (``lam_floored`` False) for a λ given by
-        the user.
+        None without one); ``lam_factor`` and ``lam_noise_level`` are None, and ``lam_floored``
+        False, for a λ given by the user.
 
         Parameters
         ----------
