@@ -298,13 +298,6 @@ def traced_run(scan, c: float, truth: np.ndarray, **options):
     return result, trace
 
 
-def full_reach(problem) -> float:
-    """L · max x₀ (Pa) of a `fpscan.service.recon.tv.formulation.TvProblem` (its ``reach_unit``): the λ
-    at which tv's proximal step λ TV / L, L = `MARGIN` × its gain estimate, weighs TV by the warm
-    start's peak x₀ (ρ = λ / that = 1; `tv_lam_reach.py`)."""
-    return float(problem.params["reach_unit"])
-
-
 def sparse_scan(case: dict, mask, noise: str, seed: int, meta: dict):
     """A case's record with noise ``noise`` of seed ``seed`` (a family member's offset by its own
     seed), and its A-lines at ``mask``'s points as a `PointDataset` (area weights, the lattice's
@@ -352,7 +345,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         from fpscan import tv_problem
 
         problem = tv_problem(dataset, dtype="float32", **grid_opts)
-        lam = max(problem.lam, probe["lam_reach"] * full_reach(problem))
+        lam = max(problem.lam, probe["lam_reach"] * problem.params["reach_unit"])  # L · max x₀
         return {"lam": lam}, lam > problem.params["lam_noise_level"]
 
     lam_opt, probe_floored = lam_of(scan)

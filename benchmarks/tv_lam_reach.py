@@ -34,9 +34,9 @@ def described(problem, case: str, mask: int, noise: str, seed: int) -> dict:
     rule's λ alone (``rho_noise``: below the reach floor where it set λ, ``floored``;
     `fpscan.service.recon.tv.lam.REACH_FLOOR`)."""
     p = problem.params
-    unit = matrix.full_reach(problem)
+    unit = p["reach_unit"]  # L · max x₀
     return dict(case=case, mask=mask, noise=noise, seed=seed, lam=problem.lam, reach_unit=unit,
-                rho=problem.lam / unit, rho_noise=p["lam_noise_level"] / unit, floored=p["lam_floored"],
+                rho=p["prox_reach"], rho_noise=p["lam_noise_level"] / unit, floored=p["lam_floored"],
                 lam_factor=p["lam_factor"], warm_discrepancy=p["warm_discrepancy"])
 
 

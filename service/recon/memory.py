@@ -390,10 +390,10 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     # the k-space, a chunk's fine-grid and depth arrays, a batch of full lateral spectra (complex), and one
     # slab of the lateral transforms' padded rows (`fpscan.physics.fft_engine.SLAB_BYTES`, real)
-    rows = max(image_shape[0], n_t) * image_shape[1] * nx2 * b
+    plane = image_shape[1] * nx2 * b  # one padded row of the lateral transforms
     parts = (2 * b * every * max(image_shape[0], n_t), 2 * b * chunk * fine, 2 * b * chunk * max(nz2, n_t),
              2 * b * 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2,
-             min(rows, max(fft_engine.SLAB_BYTES, image_shape[1] * nx2 * b)))
+             min(max(image_shape[0], n_t) * plane, max(fft_engine.SLAB_BYTES, plane)))
     operator = sum(parts)
 
     def pooled(nbytes: int) -> int:  # kept by the work-array pool once lent (`fpscan.physics.workspace.MIN_BYTES`)
