@@ -351,7 +351,8 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
         Naming the problem (unknown method or option name, an option the method does not
         take, a grid method on a sensor mask, no A-lines, bad values -- an option outside
         its rule is ``fpscan.service.recon.checks.OptionError`` -- an implausible speed of sound
-        without ``force``).
+        without ``force``, a dataset whose own speed of sound, sample interval, spacings,
+        lattice or lateral shift are out of bounds: ``fpscan.service.recon.dataset.check_dataset``).
     Cancelled
         When ``should_stop()`` returned True.
 
@@ -399,6 +400,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
                                           should_stop=should_stop, quiet=True, **given), method)
     spec = _methods.get(method)
     opts = method_options(method, options, **given)
+    _checked_input(dataset)
     progress = forward(progress)  # the fraction and the stage only move forward, whatever the method says
     if opts.sound_speed == "auto":
         from fpscan.service.autofocus import focus_then_reconstruct
@@ -543,6 +545,7 @@ def tv_problem(dataset: Dataset, options: dict | MethodOptions | None = None, /,
     if opts.sound_speed == "auto":
         raise OptionError("tv_problem needs the speed of sound in m/s, not 'auto' (the search reconstructs: "
                           "take the params['sound_speed'] of fpscan.reconstruct(dataset, 'tv', sound_speed='auto'))")
+    _checked_input(dataset)
     c = float(dataset.sound_speed if opts.sound_speed is None else opts.sound_speed)
     points = dataset.to_points() if isinstance(dataset, GridDataset) else dataset
     assert isinstance(opts, tv.Options)  # `method_options` gives tv's own model
@@ -553,6 +556,20 @@ def tv_problem(dataset: Dataset, options: dict | MethodOptions | None = None, /,
         pb = dataclasses.replace(pb, x=np.asarray(pb.x, dtype=np.float64) + float(shift[0]),
                                  y=pb.y if y is None else y)
     return pb
+
+
+def _checked_input(dataset: Any) -> None:
+    """A reconstruction's input: a dataset whose numbers are within their bounds
+    (`fpscan.service.recon.dataset.check_dataset`; a ValueError naming the first that is not)."""
+    from fpscan.service.recon.dataset import GridDataset, PointDataset, check_dataset
+
+    if isinstance(dataset, GridDataset):
+        check_dataset(dataset)
+    elif isinstance(dataset, PointDataset):
+        check_dataset(dataset)
+    else:
+        raise ValueError(f"a reconstruction's input is a GridDataset or PointDataset "
+                         f"(fpscan.load_dataset reads one from a file), got {type(dataset).__name__}")
 
 
 def _shift_lateral(result: Reconstruction, shift: tuple[float, ...] | None) -> None:

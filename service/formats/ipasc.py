@@ -44,7 +44,7 @@ from fpscan.physics.axes import centred_axis
 from fpscan.service.disk import file_replaced
 from fpscan.service.formats.load_options import WavelengthChoice
 from fpscan.service.formats.registry import Format, Source
-from fpscan.service.recon.dataset import PointDataset, check_wavelength_index
+from fpscan.service.recon.dataset import PointDataset, check_wavelength_index, positive
 
 __all__ = ["DETECTOR_ID_WIDTH", "FORMAT", "export_scan", "import_ipasc", "load", "read_ipasc",
            "read_open_ipasc", "sniff", "write_ipasc"]
@@ -407,9 +407,9 @@ def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0, measurement_inde
             raise ValueError(f"fpscan_weights has {weights.size} values for {n_det} detectors")
     indices = m.get("fpscan_lattice_indices")
     two_d = int(m.get("fpscan_spatial_dimensions") or 3) == 2
-    if plan is not None and "lattice" in plan:
-        lat = plan["lattice"]
-        n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])
+    lattice = _plan_lattice(plan)
+    if lattice is not None:
+        n_x, n_y, pitch = lattice["n_x"], lattice["n_y"], lattice["pitch"]
         gx, gy = centred_axis(n_x, pitch), centred_axis(n_y, pitch)
     else:
         gx = _regular_axis(pos3[:, 0], "x")
@@ -507,10 +507,30 @@ def _plan(m: dict) -> dict | None:
     unreadable."""
     if isinstance(m.get("fpscan_plan_json"), str):
         try:
-            return json.loads(m["fpscan_plan_json"])
+            plan = json.loads(m["fpscan_plan_json"])
         except json.JSONDecodeError:
             return None
+        return plan if isinstance(plan, dict) else None
     return None
+
+
+def _plan_lattice(plan: dict | None) -> dict | None:
+    """The lattice ``{"n_x", "n_y", "pitch"}`` (pitch in m) of the exported plan, checked before
+    anything is sized from it: integers of at least 1, at most
+    `fpscan.driver.plan.MAX_LATTICE_POINTS` points, a positive finite pitch; None without one."""
+    from fpscan.driver.plan import MAX_LATTICE_POINTS
+
+    lat = plan.get("lattice") if plan is not None else None
+    if lat is None:
+        return None
+    if not isinstance(lat, dict):
+        raise ValueError("fpscan_plan_json's lattice must be an object {n_x, n_y, pitch}")
+    sizes = [lat.get("n_x"), lat.get("n_y", 1)]
+    if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in sizes) \
+            or sizes[0] * sizes[1] > MAX_LATTICE_POINTS:
+        raise ValueError(f"fpscan_plan_json's lattice must have 1 to {MAX_LATTICE_POINTS} points (integers n_x, "
+                         f"n_y), got {sizes[0]!r} x {sizes[1]!r}")
+    return {"n_x": sizes[0], "n_y": sizes[1], "pitch": positive("fpscan_plan_json's lattice pitch", lat.get("pitch"))}
 
 
 import_ipasc = read_ipasc
@@ -579,10 +599,8 @@ def _dataset(source: Source, wavelength_index: int) -> PointDataset:
         check_wavelength_index(wavelength_index, _wavelengths(source.h5), "file")
     r = read_open_ipasc(source.h5, wavelength_index=wavelength_index)
     plan, indices = r["plan"], r["indices"]
-    lattice = None
-    if isinstance(plan, dict) and isinstance(plan.get("lattice"), dict) and indices is not None:
-        lat = plan["lattice"]
-        lattice = {"n_x": int(lat["n_x"]), "n_y": int(lat.get("n_y", 1)), "pitch": float(lat["pitch"])}
+    lattice = _plan_lattice(plan) if indices is not None else None
+    if lattice is not None:
         indices = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
     wl = r["wavelengths"]
     return PointDataset(alines=r["alines"], positions=r["positions"], weights=r["weights"],

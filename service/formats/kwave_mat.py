@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import io
 import struct
+import warnings
 import zlib
 from collections.abc import Iterator
 from typing import Any, BinaryIO
@@ -400,9 +401,14 @@ def _v5_variables(fh: BinaryIO, names: set[str] | None, max_bytes: int,
         return {}, listed
     budget.held(sum(d for n, _, d in sizes if n in wanted), "variables " + ", ".join(wanted))
     try:
-        got = scipy.io.loadmat(stream, variable_names=wanted, simplify_cells=True, mat_dtype=True)
+        with warnings.catch_warnings():  # mat_dtype casts a complex variable to its real part, warning only
+            warnings.simplefilter("error", np.exceptions.ComplexWarning)
+            got = scipy.io.loadmat(stream, variable_names=wanted, simplify_cells=True, mat_dtype=True)
     except MemoryError:
         raise
+    except np.exceptions.ComplexWarning:
+        raise ValueError("the MAT-file holds complex numbers where k-Wave's are real (sensor data, dt, the grid, "
+                         "the speed of sound): arrays must be real") from None
     except Exception as exc:  # scipy raises many kinds on a damaged file
         raise ValueError(f"the MAT-file is not readable ({type(exc).__name__})") from None
     return {k: v for k, v in got.items() if not k.startswith("__")}, listed

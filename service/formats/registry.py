@@ -33,7 +33,7 @@ from fpscan.service.recon.dataset import MAX_ELEMENTS
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
-__all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
+__all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "UNREADABLE", "register", "unregister", "names",
            "open_source", "sniff", "detect", "describe", "load", "export_formats", "export_file"]
 
 #: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`): a MATLAB v7.3 MAT-file's
@@ -454,6 +454,13 @@ def _unknown(source: Source, choices: tuple[str, ...]) -> str:
     return f"the HDF5 file is in none of the known formats ({', '.join(choices)})"
 
 
+#: what a format's reader raises on a file whose structure its own checks did not foresee (a
+#: missing key, a string where a number belongs, an index past an array, a number past float's
+#: range, an allocation past memory): :func:`load` turns these into a ``ValueError`` naming the
+#: format, as a file the reader refused with its own reason
+UNREADABLE = (KeyError, IndexError, TypeError, AttributeError, ArithmeticError, MemoryError)
+
+
 def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = MAX_BYTES,
          choices: tuple[str, ...] | None = None, bounded: bool = True, **options: Any) -> tuple[str, Any]:
     """Open ``path`` once, check it, and load it as the format ``kind``.
@@ -498,7 +505,10 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
     ValueError
         A name not in ``choices``; a file no format fits, that is refused, or of a detected
         format not in ``choices``; a format without a reader; a wavelength index out of
-        range; what the format's ``load`` raises; a bounded read that did not end in time.
+        range; what the format's ``load`` raises (a ``KeyError``, ``IndexError``, ``TypeError``,
+        ``AttributeError``, ``ArithmeticError`` or ``MemoryError`` of its reader
+        too, as a ``ValueError`` naming the format: `UNREADABLE`); a bounded read that did not end
+        in time.
     FileNotFoundError
         No file ``path``.
     """
@@ -523,10 +533,13 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
         if index and not fmt.wavelengths:
             raise ValueError(f"wavelength index {index} is out of range: a {fmt.name} file holds one "
                              "wavelength's data")
-        if options.get("all_wavelengths") and not fmt.wavelengths:  # one wavelength: a list of one
-            return fmt.name, [fmt.load(src, max_bytes=max_bytes,
-                                       **{k: v for k, v in options.items() if k != "all_wavelengths"})]
-        return fmt.name, fmt.load(src, max_bytes=max_bytes, **options)
+        try:
+            if options.get("all_wavelengths") and not fmt.wavelengths:  # one wavelength: a list of one
+                return fmt.name, [fmt.load(src, max_bytes=max_bytes,
+                                           **{k: v for k, v in options.items() if k != "all_wavelengths"})]
+            return fmt.name, fmt.load(src, max_bytes=max_bytes, **options)
+        except UNREADABLE as exc:  # a reader met a structure its checks did not foresee
+            raise ValueError(f"this file does not read as {fmt.what} ({type(exc).__name__}: {exc})") from exc
 
 
 def export_formats(source: str | None = None) -> tuple[str, ...]:

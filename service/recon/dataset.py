@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from fpscan.physics.axes import centred_axis
 
 __all__ = ["GridDataset", "PointDataset", "Dataset", "MAX_ELEMENTS", "ALL_WAVELENGTHS", "check_wavelength",
            "check_wavelength_index", "file_wavelengths", "wavelength_params", "p0_unit", "positive",
-           "grid_array", "lattice_axes", "dataset_nbytes", "lateral_shift_of"]
+           "grid_array", "lattice_axes", "dataset_nbytes", "lateral_shift_of", "check_dataset"]
 
 MAX_ELEMENTS = 2 ** 31
 #: ``wavelength="all"``: every wavelength of a multi-wavelength file, one dataset (one volume) each
@@ -490,6 +490,8 @@ _accepting_old_speed_name(GridDataset)
 _accepting_old_speed_name(PointDataset)
 
 Dataset = GridDataset | PointDataset
+#: either kind of dataset, as given (`check_dataset` returns what it is given)
+AnyDataset = TypeVar("AnyDataset", GridDataset, PointDataset)
 
 
 def p0_unit(ds: GridDataset | PointDataset) -> str:
@@ -553,6 +555,125 @@ def positive(name: str, v: Any) -> float:
     if not (math.isfinite(f) and f > 0):
         raise ValueError(f"{name} must be a positive finite number, got {v!r}")
     return f
+
+
+def check_dataset(ds: AnyDataset) -> AnyDataset:
+    """The numbers a dataset carries beside its samples, checked before anything is computed
+    from them: what every file reader's dataset must hold
+    (`fpscan.service.storage.loader.load_dataset`) and every reconstruction's input
+    (`fpscan.service.pipeline.reconstruct`).
+
+    - ``sound_speed`` within ``fpscan.constants.C_LIMITS`` (100-10 000 m/s, the bound an explicit
+      speed keeps even with ``force``: a file may hold another medium, not another unit);
+    - ``dt`` and the lateral spacings (``dx``, ``dy``; a point dataset's lattice pitch and the
+      steps of its ``grid``) within the plausible ranges of typed values
+      (`fpscan.driver.units.check_plausible`: 0.1 ns-1 µs, 1 µm-10 mm, the unit mistake named);
+    - ``t0`` finite, and ``lateral_shift`` None or one finite value per lateral axis;
+    - the samples (grid ``data``, or the A-lines where there are any) real and finite
+      (`fpscan.service.recon.checks.finite_array`);
+    - a point dataset's ``positions`` ``(n, 1)`` or ``(n, 2)`` and finite, one per A-line, its
+      ``weights`` None or ``(n,)`` finite and >= 0, its ``lattice`` at most
+      `fpscan.driver.plan.MAX_LATTICE_POINTS` points, and its ``indices`` ``(n, 2)`` integers
+      inside it.
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+
+    Returns
+    -------
+    GridDataset or PointDataset
+        ``ds`` itself (its own type).
+
+    Raises
+    ------
+    ValueError
+        The first number out of its bounds, named (``fpscan.driver.units.ImplausibleValue`` for
+        a spacing or sample interval out of its range).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.dataset import GridDataset, check_dataset
+    >>> check_dataset(GridDataset(np.zeros((8, 4)), dx=1e-4, dt=2e-8, sound_speed=1500.0)).dx
+    0.0001
+    >>> check_dataset(GridDataset(np.zeros((8, 4)), dx=1e-4, dt=2e-8, sound_speed=1.5))
+    Traceback (most recent call last):
+    ...
+    ValueError: the dataset's sound_speed must be within 100-10000 m/s, got 1.5
+    """
+    from fpscan.constants import C_LIMITS
+    from fpscan.driver.units import check_plausible
+    from fpscan.service.recon.checks import finite_array
+
+    c = _number("sound_speed", ds.sound_speed)
+    if not C_LIMITS[0] < c <= C_LIMITS[1]:
+        raise ValueError(f"the dataset's sound_speed must be within {C_LIMITS[0]:g}-{C_LIMITS[1]:g} m/s, got {c:g}")
+    _number("t0", ds.t0)
+    spacings: dict[str, float] = {"dt": _number("dt", ds.dt)}
+    if isinstance(ds, GridDataset):
+        spacings["dx"] = _number("dx", ds.dx)
+        lateral = finite_array("the dataset's data", ds.data, (2, 3)).ndim - 1
+        if ds.dy is not None:
+            spacings["dy"] = _number("dy", ds.dy)
+    else:
+        lateral = _check_points(ds, spacings)
+    check_plausible(dt=spacings["dt"], dx=spacings.get("dx"), dy=spacings.get("dy"), pitch=spacings.get("pitch"))
+    shift = ds.lateral_shift
+    if shift is not None:
+        values = [_number("lateral_shift", v) for v in np.ravel(np.asarray(shift, dtype=object))]
+        if not 1 <= len(values) <= max(1, lateral):
+            raise ValueError(f"the dataset's lateral_shift must have one value per lateral axis (x or x, y), "
+                             f"got {len(values)}")
+    return ds
+
+
+def _number(name: str, v: Any) -> float:
+    """`check_dataset`: the dataset's ``name`` as a finite float (a ValueError naming it)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f"the dataset's {name} must be a real number, got {v!r}")
+    f = float(v)
+    if not math.isfinite(f):
+        raise ValueError(f"the dataset's {name} must be finite, got {f}")
+    return f
+
+
+def _check_points(ds: PointDataset, spacings: dict[str, float]) -> int:
+    """`check_dataset` of a point dataset's arrays: its lateral dimensions (1 or 2); its grid
+    steps and lattice pitch go into ``spacings`` (``dx``, ``dy``, ``pitch``) for the range check."""
+    from fpscan.driver.plan import MAX_LATTICE_POINTS
+    from fpscan.service.recon.checks import finite_array
+
+    n = np.shape(ds.alines)[0]
+    pos = np.asarray(ds.positions)
+    if pos.ndim != 2 or pos.shape[1] not in (1, 2) or pos.shape[0] != n:
+        raise ValueError(f"the dataset's positions must be (n, 1) or (n, 2), one per A-line ({n}), "
+                         f"got shape {pos.shape}")
+    if pos.dtype.kind not in "iuf" or not np.isfinite(pos).all():
+        raise ValueError("the dataset's positions must be finite real numbers")
+    if np.size(ds.alines):
+        finite_array("the dataset's A-lines", ds.alines, (2,))
+    if ds.weights is not None:
+        w = np.asarray(ds.weights)
+        if w.shape != (n,) or w.dtype.kind not in "iuf" or not np.isfinite(w).all() or (w < 0).any():
+            raise ValueError(f"the dataset's weights must be {n} finite numbers >= 0 (m², m on a line), one per A-line")
+    for name, axis in zip(("dx", "dy"), ds.grid):
+        steps = np.diff(np.asarray(axis, dtype=np.float64).reshape(-1))
+        if steps.size:
+            spacings[name] = _number(f"grid step along {name[1]}", steps[0])
+    if ds.lattice is None:
+        return pos.shape[1]
+    n_x, n_y = (int(_number(f"lattice {k}", ds.lattice.get(k, 1))) for k in ("n_x", "n_y"))
+    if n_x < 1 or n_y < 1 or n_x * n_y > MAX_LATTICE_POINTS:
+        raise ValueError(f"the dataset's lattice must have 1 to {MAX_LATTICE_POINTS} points, got {n_x} x {n_y}")
+    spacings["pitch"] = _number("lattice pitch", ds.lattice.get("pitch"))
+    if ds.indices is not None:
+        idx = np.asarray(ds.indices)
+        if idx.dtype.kind not in "iu" or idx.shape != (n, 2):
+            raise ValueError(f"the dataset's lattice indices must be ({n}, 2) integers, got {idx.dtype} {idx.shape}")
+        if idx.size and (idx.min() < 0 or idx[:, 0].max() >= n_x or idx[:, 1].max() >= n_y):
+            raise ValueError(f"the dataset's lattice indices must lie inside its {n_x} x {n_y} lattice")
+    return pos.shape[1]
 
 
 def grid_array(a: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ file's ``wavelengths``, and every reconstruction of it records ``wavelength_inde
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,7 @@ from fpscan.service.recon.dataset import (
     Dataset,
     GridDataset,
     PointDataset,
+    check_dataset,
     check_wavelength,
     dataset_nbytes,
     file_wavelengths,
@@ -153,7 +155,9 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
         Naming the fault: an unknown ``format``, ``"all"`` as ``wavelength``, an index out of
         range (naming the file's wavelengths), an implausible explicit ``dt``, ``dx``, ``dy``
         or ``sound_speed`` (``fpscan.driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
-        is named), an unsafe or unreadable file, a ``.npy`` array whose time axis its shape
+        is named), an unsafe or unreadable file, a file whose own speed of sound, sample interval,
+        spacings, lattice or lateral shift are out of bounds
+        (``fpscan.service.recon.dataset.check_dataset``), a ``.npy`` array whose time axis its shape
         does not show and ``axes`` does not say (naming the readings it could have).
     FileNotFoundError
         If ``path`` does not exist.
@@ -191,7 +195,7 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
     (``fpscan.service.formats.load_options.check_load_options``: a ValueError naming the ones it takes)."""
     from fpscan.driver.units import check_plausible
 
-    num = (int, float)
+    num = numbers.Real  # numpy's scalars too (np.float32(20.0) is as much a unit mistake as 20.0)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
                     dy=dy if isinstance(dy, num) else None,
                     sound_speed=sound_speed if isinstance(sound_speed, num) else None, force=force)
@@ -214,6 +218,7 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
             ds.sound_speed = positive("sound_speed", sound_speed)
         if dt is not None:
             ds.dt = positive("dt", dt)
+        check_dataset(ds)  # the file's own numbers are as hostile as typed ones
     return loaded
 
 
@@ -245,8 +250,8 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
     FileNotFoundError
         If ``path`` does not exist.
     """
-    return formats.load(path, "fpscan", bounded=False, allow_empty=allow_empty,
-                        wavelength_index=wavelength_index)[1]
+    return check_dataset(formats.load(path, "fpscan", bounded=False, allow_empty=allow_empty,
+                                      wavelength_index=wavelength_index)[1])
 
 
 def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
@@ -269,7 +274,7 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
     FileNotFoundError
         If ``path`` does not exist.
     """
-    return formats.load(path, "dataset")[1]
+    return check_dataset(formats.load(path, "dataset")[1])
 
 
 def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wavelength: Any = None,

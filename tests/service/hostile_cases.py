@@ -213,6 +213,32 @@ def scan_with_plan(n_x: int):
     return make
 
 
+def scan_edited(label: str, edit):
+    """A valid scan file with ``edit(h5py.File)`` applied: numbers a damaged or hostile writer left."""
+    def make(folder: Path) -> Path:
+        out = folder / f"scan-{label}.h5"
+        out.write_bytes(scan_file(folder).read_bytes())
+        with h5py.File(out, "a") as f:
+            edit(f)
+        return out
+    return make
+
+
+def _dc_level_zero(f: h5py.File) -> None:
+    """One completed A-line at DC level 0: its pressure (the AC over the DC level) is not finite."""
+    m = f["aline_meta"][...]
+    np.put(m["dc_level"], 3, 0.0)
+    f["aline_meta"][...] = m
+
+
+def _weights(value: float):
+    def edit(f: h5py.File) -> None:
+        w = f["weights"][...]
+        w[2] = value
+        f["weights"][...] = w
+    return edit
+
+
 UPLOADS = [
     Upload("truncated 10 %", "fpscan", truncated(0.10), 422, "truncated"),
     Upload("truncated 50 %", "fpscan", truncated(0.50), 422, "truncated"),
@@ -242,6 +268,16 @@ UPLOADS = [
            {"dt": "1e-8", "dx": "1e-4"}),
     Upload("scan plan with n_x = 1e8", "fpscan", scan_with_plan(10**8), 422, "lattice"),
     Upload("scan plan with n_x = 1e12", "fpscan", scan_with_plan(10**12), 422, "lattice"),
+    # numbers of a scan file the import must refuse before they are stored: a non-finite A-line
+    # (its NaN noise figure made the datasets table unreadable to every later upload), a speed of
+    # sound or sample interval of another unit, weights no reconstruction can use
+    Upload("scan with an A-line at DC level 0", "fpscan", scan_edited("dc0", _dc_level_zero), 422, "NaN or inf"),
+    Upload("scan with a sound speed of 1e-30 m/s", "fpscan",
+           scan_edited("c", lambda f: f.attrs.__setitem__("sound_speed", 1e-30)), 422, "sound_speed"),
+    Upload("scan with dt of 10 s", "fpscan", scan_edited("dt", lambda f: f.attrs.__setitem__("dt_s", 10.0)), 422,
+           "implausible"),
+    Upload("scan with a negative weight", "fpscan", scan_edited("w", _weights(-1e-8)), 422, "weights"),
+    Upload("scan with a NaN weight", "fpscan", scan_edited("w-nan", _weights(math.nan)), 422, "weights"),
     # the structural checks do not depend on the format the upload claims
     Upload("external storage (ipasc)", "ipasc", external_storage, 422, "external storage"),
     Upload("external link (fpscan)", "fpscan", external_link, 422, "external link"),

@@ -24,12 +24,18 @@ class DatasetRecords(StoreBase):
     """
 
     def put_dataset(self, dataset_id: str, meta: dict) -> None:
-        """Store ``dataset_id``'s ``meta``, uploaded now (its wall and store times)."""
+        """Store ``dataset_id``'s ``meta``, uploaded now (its wall and store times).
+
+        ``meta`` is written as strict JSON (RFC 8259: no NaN or infinity, which SQLite's JSON
+        functions refuse on every later query of the table): a ValueError before anything is stored.
+        """
+        text = json.dumps(meta, allow_nan=False)
+
         def write() -> None:
             with self._lock:
                 wall, mono = self._now()
                 self._db.execute("INSERT INTO datasets (id, meta, created, created_mono, used_mono) "
-                                 "VALUES (?, ?, ?, ?, ?)", (dataset_id, json.dumps(meta), wall, mono, mono))
+                                 "VALUES (?, ?, ?, ?, ?)", (dataset_id, text, wall, mono, mono))
         self._write(write)
 
     def get_dataset(self, dataset_id: str) -> dict | None:
