@@ -156,8 +156,14 @@ class Process:
                     return line.decode().strip()
             elif self.proc.poll() is not None:
                 break
-        raise RuntimeError(f"{' '.join(map(str, self.argv[2:4]))} printed no first line within "
-                           f"{timeout:.0f} s (exit {self.proc.poll()}):\n{self.log_tail()}")
+        name = " ".join(map(str, self.argv[2:4]))
+        try:  # its output ended: it is exiting (a refused option), and says why on stderr
+            status = self.proc.wait(timeout=5.0) if time.monotonic() < deadline else self.proc.poll()
+        except subprocess.TimeoutExpired:
+            status = None
+        if status is not None:
+            raise RuntimeError(f"{name} exited (status {status}) before its first line:\n{self.log_tail()}")
+        raise RuntimeError(f"{name} printed no first line within {timeout:.0f} s:\n{self.log_tail()}")
 
     def _drain(self) -> None:
         stdout = self.proc.stdout

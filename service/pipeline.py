@@ -693,10 +693,16 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     progress = forward(progress)  # the job's fraction and stage only move forward (fpscan.service.progress.Forward)
     load = {k: v for k, v in (load or {}).items() if v is not None}
     opts = None if method is None else method_options(method, options, **given)  # refused before any reading
+    if unmix is not None:
+        from fpscan.service.recon.unmix import check_unmix_options
+
+        check_unmix_options(unmix.get("threshold", 0.1), unmix.get("fluence"))
     t0 = time.perf_counter()
     if progress is not None:
         progress(0.0, "loading")
     wl, datasets = _load_inputs(paths, format, unmix is not None, wavelength, wavelengths, load, plan)
+    if unmix is not None:  # the fluences against the wavelengths found, before any is reconstructed
+        check_unmix_options(unmix.get("threshold", 0.1), unmix.get("fluence"), len(datasets))
     method = method or default_method(datasets[0])
     if opts is None:
         opts = method_options(method, options, **given)

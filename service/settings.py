@@ -22,9 +22,12 @@ from typing import Any, Literal
 from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["LOOPBACK_HOSTS", "MIN_TOKEN_BITS", "TOKEN_RECIPE", "is_loopback", "token_entropy_bits", "Settings"]
+__all__ = ["LOOPBACK_HOSTS", "LOG_LEVELS", "MIN_TOKEN_BITS", "TOKEN_RECIPE", "is_loopback", "token_entropy_bits",
+           "Settings"]
 
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+#: the log levels ``log_level`` takes (uvicorn's: ``uvicorn.config.LOG_LEVELS``; trace is uvicorn's own, below debug)
+LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
 #: the least estimated entropy of a bearer token ``fpscan serve`` starts with (bits), unless told
 #: otherwise (``allow_weak_token``): 128 bits, the security strength NIST SP 800-57 Part 1 (Rev. 5),
 #: Table 2, asks of keys used beyond 2030
@@ -230,7 +233,7 @@ class Settings(BaseSettings):
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
                                                   "(default: they wait, paused, for POST /resume)")
     log_level: str = Field("info", description="log level of the server and its app (critical, error, warning, info, "
-                           "debug; case-insensitive)")
+                           "debug, trace; case-insensitive)")
     token_file: Path | None = Field(None, description="file holding the bearer token (Docker secrets: "
                                                       "/run/secrets/<name>); used when token is not set")
     retention_keep_results: int | None = Field(None, ge=0, description="keep the newest N finished "
@@ -259,6 +262,14 @@ class Settings(BaseSettings):
             if not key or len(key) > 64 or not all(ch.isalnum() or ch in "_-" for ch in key):
                 raise ValueError(f"scanner id {key!r} must be 1-64 characters of [A-Za-z0-9_-]")
         return value
+
+    @field_validator("log_level")
+    @classmethod
+    def _log_level(cls, value: str) -> str:
+        level = value.strip().lower()
+        if level not in LOG_LEVELS:
+            raise ValueError(f"log level must be one of {', '.join(LOG_LEVELS)}, got {value!r}")
+        return level
 
     @field_validator("allowed_hosts")
     @classmethod

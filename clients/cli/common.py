@@ -721,6 +721,71 @@ def quantity(kind: str, name: str) -> Callable[[str], float]:
     return parse
 
 
+def seconds(name: str) -> Callable[[str], float]:
+    """An ``argparse`` ``type=`` for a time limit: a finite number of seconds above 0.
+
+    Parameters
+    ----------
+    name : str
+        The option's name in messages (``--timeout``).
+
+    Returns
+    -------
+    callable
+        ``parse(text) -> float`` (s); NaN, an infinity, 0 or a negative value raise
+        ``argparse.ArgumentTypeError`` naming ``name`` (a usage error, exit 2).
+
+    Examples
+    --------
+    >>> from fpscan.clients.cli.common import seconds
+    >>> seconds("--timeout")("2.5")
+    2.5
+    >>> seconds("--timeout")("nan")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: --timeout must be a finite number of seconds > 0, got 'nan'
+    """
+    import argparse
+    import math
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{name} must be a finite number of seconds > 0, got {text!r}")
+        return value
+
+    parse.__name__ = "seconds"
+    return parse
+
+
+def seed(text: str) -> int:
+    """``argparse`` ``type=`` of a random seed: an integer >= 0 (numpy's ``default_rng`` takes no
+    other); anything else raises ``argparse.ArgumentTypeError`` (a usage error, exit 2).
+
+    Examples
+    --------
+    >>> from fpscan.clients.cli.common import seed
+    >>> seed("7")
+    7
+    >>> seed("-1")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: a seed is an integer >= 0, got '-1'
+    """
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a seed is an integer >= 0, got {text!r}")
+    return value
+
+
 def format_bytes(n: float) -> str:
     """A number of bytes with a binary prefix.
 

@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from fpscan.clients.cli.common import quantity
+    from fpscan.clients.cli.common import quantity, seed
 
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     parser.add_argument("--lattice", type=int, default=DEFAULTS["lattice"], metavar="N",
@@ -82,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar="M", help="depth of the point of interest, e.g. 3mm (default %(default)s m)")
     parser.add_argument("--no-dense", action="store_true",
                         help="skip the dense full-lattice reference scan")
-    parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default %(default)s)")
+    parser.add_argument("--seed", type=seed, default=1, help="simulator noise seed (default %(default)s)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
     from fpscan.clients.cli.common import default_dtype
 

@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli.common import add_progress_option, add_server_options, client_errors, delete_each
+from fpscan.clients.cli.common import (
+    add_progress_option,
+    add_server_options,
+    client_errors,
+    delete_each,
+    seconds,
+)
 
 __all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run", "mask_words"]
 
@@ -39,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("wait", help="wait until a job ends, with a progress bar",
                        description="Wait until a job ends; exit 0 if it succeeded, 1 otherwise.")
     p.add_argument("job_id")
-    p.add_argument("--timeout", type=float, default=None, metavar="S", help="give up after S seconds")
+    p.add_argument("--timeout", type=seconds("--timeout"), default=None, metavar="S", help="give up after S seconds")
     add_progress_option(p)
     add_server_options(p, required=True)
     p = sub.add_parser("resume", help="resume a paused scan",

@@ -288,6 +288,11 @@ def run(args: argparse.Namespace) -> int:
         return needs_extra(args, "driver", args._planner_missing)
     if not args.out and not args.server:
         raise UsageError("give --out FILE (a local plan) or --server URL (a plan on the server)")
+    from fpscan.clients.cli.common import check_out_writable
+
+    for flag, path in (("--out", args.out), ("--preview", args.preview)):  # refused before anything is written
+        if path:
+            check_out_writable(path, flag)
     body = request_body(args)
     if args.server:
         return _remote(args, body)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli.common import UsageError, add_server_options, client_errors
+from fpscan.clients.cli.common import UsageError, add_server_options, client_errors, seconds
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="with --server: the excitation wavelength in m (one of the plan's) that the "
                         "live preview shows (default: the plan's first)")
     parser.add_argument("--window", type=int, default=256, help="credit window in A-lines (the device caps it at its limit)")
-    parser.add_argument("--timeout", type=float, default=10.0,
+    parser.add_argument("--timeout", type=seconds("--timeout"), default=10.0,
                         help="longest wait for a silent device, s (default 10)")
     parser.add_argument("--fsync", action="store_true",
                         help="fsync the scan file after every A-line (survives power loss)")
@@ -148,8 +148,8 @@ def run(args: argparse.Namespace) -> int:
     from fpscan.driver.acquire import acquire
     from fpscan.service.formats.plan import read_plan
 
-    if args.window < 1 or args.timeout <= 0:
-        raise UsageError("--window must be >= 1 and --timeout > 0")
+    if args.window < 1:
+        raise UsageError("--window must be >= 1")
     try:
         plan = read_plan(args.plan)  # a wrong file is named before the device is opened
     except ValueError as exc:

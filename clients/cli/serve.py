@@ -51,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--memory-limit", type=float, default=None, help="reconstruction memory limit, GiB")
     parser.add_argument("--settings", default=None, help="settings file (JSON or TOML)")
     parser.add_argument("--no-web", action="store_true", help="do not serve the web page")
-    parser.add_argument("--log-level", default=None, help="uvicorn/app log level (default info)")
+    parser.add_argument("--log-level", default=None,
+                        help="uvicorn/app log level: critical, error, warning, info (default), debug or trace")
     from fpscan.clients.cli.common import default_dtype
 
     parser.epilog = (f"Precision: reconstructions are {default_dtype()} unless a request's params.dtype asks for "

@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from fpscan.clients.cli.common import quantity
+    from fpscan.clients.cli.common import quantity, seed
 
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
                         help="A-line source: 'balls' (default: built-in phantom of balls and "
@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default="",
                         help="fault spec, e.g. 'corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200,"
                              "interlock=1500'")
-    parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of noise and faults")
     parser.add_argument("--record", default=None, metavar="FILE",
                         help="write the ground truth (every A-line sent) to this HDF5 file")
     parser.add_argument("--snr", type=float, default=None, help="peak signal / noise std")
@@ -150,10 +150,15 @@ def run(args: argparse.Namespace) -> int:
 
     from fpscan.driver.faults import FaultSpec
     from fpscan.driver.simulator import SimConfig, SimulatedScanner
-    from fpscan.driver.units import check_plausible
+    from fpscan.driver.units import check_speeds
 
-    # the unit rules of fpscan plan (a sound speed of 1.5 is km/s typed as m/s): exit 2
-    check_plausible(sound_speed=args.sound_speed, force=args.force)
+    # the speed rule of fpscan plan and recon (a sound speed of 1.5 is km/s typed as m/s; forced, still
+    # within 100-10 000 m/s): exit 2
+    check_speeds(sound_speed=args.sound_speed, force=args.force)
+    if args.record is not None:  # the ground truth is written after each scan, inside the device's loop
+        from fpscan.clients.cli.common import check_out_writable
+
+        check_out_writable(args.record, "--record")
 
     source = make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed, so2=args.so2)
     config = SimConfig(

@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from fpscan.physics import spectra
 
-__all__ = ["CHUNK", "Unmixed", "too_few_wavelengths", "endmember_matrix", "nnls2", "unmix"]
+__all__ = ["CHUNK", "Unmixed", "too_few_wavelengths", "endmember_matrix", "nnls2", "check_unmix_options", "unmix"]
 
 #: voxels per block of the vectorised NNLS (bounds the temporary memory: ~60 bytes/voxel)
 CHUNK = 1 << 20
@@ -246,6 +247,50 @@ def nnls2(A: np.ndarray, Y: np.ndarray, *, chunk: int = CHUNK) -> np.ndarray:
     return X
 
 
+def check_unmix_options(threshold: float, fluence: Any = None, n_wavelengths: int | None = None) -> None:
+    """The unmixing options, checked before anything is reconstructed (`fpscan.service.pipeline.run_file`
+    asks before it loads, and again with the inputs' ``n_wavelengths``; :func:`unmix` itself).
+
+    Parameters
+    ----------
+    threshold : float
+        The THb mask's fraction of the maximum: finite, in [0, 1).
+    fluence : float, sequence of float or ndarray, optional
+        J/m²: None, one value, one per wavelength, or an array :func:`unmix` broadcasts; every
+        value finite and > 0.
+    n_wavelengths : int, optional
+        The wavelengths to unmix: a sequence of fluences must have one value, or one per wavelength.
+
+    Raises
+    ------
+    ValueError
+        Naming the option and the rule.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.unmix import check_unmix_options
+    >>> check_unmix_options(0.1, [2.0, 3.0], n_wavelengths=2)
+    >>> check_unmix_options(0.1, [1.0, 2.0, 3.0], n_wavelengths=2)
+    Traceback (most recent call last):
+    ...
+    ValueError: fluence has 3 values for 2 wavelengths (give one, or one per wavelength)
+    """
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(threshold) and 0.0 <= threshold < 1.0):
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold}")
+    if fluence is None:
+        return
+    try:
+        phi = np.asarray(fluence, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"fluence must be numbers in J/m², got {fluence!r}") from None
+    if phi.size == 0 or not np.all(np.isfinite(phi)) or np.any(phi <= 0):
+        raise ValueError("fluence must be finite and > 0 J/m²")
+    if n_wavelengths is not None and phi.ndim == 1 and phi.size not in (1, n_wavelengths):
+        raise ValueError(f"fluence has {phi.size} values for {n_wavelengths} wavelengths (give one, or one per "
+                         "wavelength)")
+
+
 def unmix(volumes: np.ndarray, wavelengths: npt.ArrayLike, *, fluence: np.ndarray | float | None = None,
           gruneisen: float = 1.0, threshold: float = 0.1, chunk: int = CHUNK) -> Unmixed:
     """Unmix per-wavelength p0 volumes into HbO2 and Hb (NNLS per voxel), THb and sO2.
@@ -305,8 +350,7 @@ def unmix(volumes: np.ndarray, wavelengths: npt.ArrayLike, *, fluence: np.ndarra
         raise ValueError(f"volumes must be (n_wavelengths={w.size}, *S), got shape {vol.shape}")
     if vol.dtype.kind not in "iuf":
         raise ValueError(f"volumes must hold real numbers, got dtype {vol.dtype}")
-    if not (math.isfinite(threshold) and 0.0 <= threshold < 1.0):
-        raise ValueError(f"threshold must lie in [0, 1), got {threshold}")
+    check_unmix_options(threshold, fluence)
     if not (math.isfinite(gruneisen) and gruneisen > 0):
         raise ValueError(f"gruneisen must be > 0, got {gruneisen}")
     shape = vol.shape[1:]
