@@ -352,7 +352,8 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
         take, a grid method on a sensor mask, no A-lines, bad values -- an option outside
         its rule is ``fpscan.service.recon.checks.OptionError`` -- an implausible speed of sound
         without ``force``, a dataset whose own speed of sound, sample interval, spacings,
-        lattice or lateral shift are out of bounds: ``fpscan.service.recon.dataset.check_dataset``).
+        lattice or lateral shift are out of bounds: ``fpscan.service.recon.dataset.check_dataset``;
+        a p0 that came out with NaN or infinite values, samples beyond the working precision's range).
     Cancelled
         When ``should_stop()`` returned True.
 
@@ -425,6 +426,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
     step = span(checked, 0.0, 1.0)
     step(0.0)
     result = spec.run(dataset, c, opts, step)
+    _finite_image(result.p0, dataset)
     # the record names the method that ran by its registered name (a method may run another's
     # kernels: the result, volume.h5 and every export say which method the user asked for)
     result.params["method"] = spec.name
@@ -570,6 +572,22 @@ def _checked_input(dataset: Any) -> None:
     else:
         raise ValueError(f"a reconstruction's input is a GridDataset or PointDataset "
                          f"(fpscan.load_dataset reads one from a file), got {type(dataset).__name__}")
+
+
+def _finite_image(p0: np.ndarray, dataset: Any) -> None:
+    """A ValueError where a method's p0 holds NaN or an infinity (its input was checked finite: the
+    samples overflowed the working precision, which the message states with their peak)."""
+    from fpscan.service.recon.checks import finite_array
+
+    try:
+        finite_array("p0", p0, (np.ndim(p0),))
+    except ValueError:
+        samples = dataset.data if hasattr(dataset, "data") else dataset.alines
+        peak = float(np.max(np.abs(samples)))
+        kind = np.dtype(p0.dtype) if np.dtype(p0.dtype).kind == "f" else np.dtype(np.float32)
+        raise ValueError(f"p0 holds NaN or infinite values: the samples reach {peak:.3g}, and {kind} holds at most "
+                         f"{float(np.finfo(kind).max):.3g}; rescale the samples or reconstruct with dtype "
+                         "float64") from None
 
 
 def _shift_lateral(result: Reconstruction, shift: tuple[float, ...] | None) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 from pathlib import Path
 
 import h5py
@@ -163,3 +164,12 @@ def test_numpy_scalars_get_the_plausibility_check_of_python_numbers(tmp_path):
     for dt in (20.0, np.float32(20.0), np.int64(20)):
         with pytest.raises(ValueError, match="did you mean 20 ns"):
             fpscan.load_dataset(path, dt=dt, dx=1e-4)
+
+
+def test_samples_beyond_the_working_precision_are_named_not_returned_as_nan():
+    huge = GridDataset(np.random.default_rng(4).standard_normal((64, 8)) * 1e300, dx=1e-4, dt=1e-4 / 1500,
+                       sound_speed=1500.0)
+    with warnings.catch_warnings(), pytest.raises(ValueError, match="samples reach 3.*e\\+300, and float32 holds"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # numpy's overflow on the way: what the error names
+        fpscan.reconstruct(huge, "ner", quiet=True)
+    assert np.isfinite(fpscan.reconstruct(huge, "ner", quiet=True, dtype="float64").p0).all()
