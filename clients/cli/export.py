@@ -94,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
     from fpscan.service.formats import FORMATS, detect, export_file, export_formats
 
     src = Path(args.scan)
+    if src.is_dir():
+        inside = src / "volume.h5"
+        hint = f": give its volume, fpscan export {inside}" if inside.is_file() else ""
+        raise UsageError(f"{src} is a folder, not a file{hint}")
     if not src.is_file():
         raise UsageError(f"no such file: {src}")
     try:

@@ -144,6 +144,10 @@ def _settings(args: argparse.Namespace) -> Settings:
     if args.device:
         overrides["devices"] = parse_devices(args.device)
     if args.memory_limit is not None:
+        import math
+
+        if not (math.isfinite(args.memory_limit) and args.memory_limit > 0):
+            raise UsageError(f"--memory-limit must be a finite number of GiB > 0, got {args.memory_limit}")
         overrides["memory_limit"] = int(args.memory_limit * 2**30)
     if not args.no_web:
         try:

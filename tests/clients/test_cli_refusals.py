@@ -20,14 +20,20 @@ def exit_code(argv, capsys):
     return stop.value.code, capsys.readouterr().err
 
 
-def test_a_log_level_uvicorn_does_not_know_is_refused_at_every_door(tmp_path):
+@pytest.mark.parametrize("flags, fragment", [
+    (["--log-level", "bogus"], "log level must be one of critical, error, warning, info, debug, trace"),
+    (["--memory-limit", "nan"], "--memory-limit must be a finite number of GiB > 0, got nan"),
+])
+def test_serve_refuses_its_options_in_one_line(flags, fragment, tmp_path):
     # in a process of its own: `fpscan serve` restarts itself in place (its allocator) before it reads options
     env = {**os.environ, "FPSCAN_TOKEN": "0123456789abcdef" * 4}
     done = subprocess.run([sys.executable, "-m", "fpscan", "serve", "--port", "0", "--data-dir", str(tmp_path / "srv"),
-                           "--log-level", "bogus"], env=env, capture_output=True, text=True, timeout=HANG_S)
-    assert done.returncode == 2 and "log level must be one of critical, error, warning, info, debug, trace" in \
-        done.stderr, done.stderr
+                           *flags], env=env, capture_output=True, text=True, timeout=HANG_S)
+    assert done.returncode == 2 and fragment in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_a_log_level_uvicorn_does_not_know_is_refused_by_the_settings():
     with pytest.raises(ValueError, match="log level must be one of"):
         Settings(log_level="verbose")
     assert [Settings(log_level=level.upper()).log_level for level in LOG_LEVELS] == list(LOG_LEVELS)
@@ -104,3 +110,11 @@ def test_a_child_that_exits_before_its_first_line_is_reported_as_such(tmp_path):
     message = str(caught.value)
     assert "exited (status 1) before its first line" in message and "within" not in message, message
     assert message.split(":\n", 1)[1].count("fpscan sim: error: refused") == 1, message  # its stderr, once
+
+
+def test_export_of_a_result_folder_names_the_volume_inside(tmp_path, capsys):
+    folder = tmp_path / "scan-nedner"
+    folder.mkdir()
+    (folder / "volume.h5").write_bytes(b"")
+    code, err = exit_code(["export", str(folder)], capsys)
+    assert code == 2 and f"is a folder, not a file: give its volume, fpscan export {folder / 'volume.h5'}" in err, err
