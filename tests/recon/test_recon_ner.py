@@ -160,6 +160,16 @@ def test_upsampling_interpolates_the_same_image():
     np.testing.assert_allclose(up.p0[:, ::2, ::2], base.p0, atol=1e-9 * np.abs(base.p0).max())
 
 
+@pytest.mark.parametrize("method", ["ner", "linear"])
+def test_upsampling_a_plane_of_one_row_keeps_one_y(method):
+    g = rng.standard_normal((32, 1, 8))
+    base = reconstruct_grid(g, DX, DT, C, dz=C * DT, method=method)
+    up = reconstruct_grid(g, DX, DT, C, upsample=2, dz=C * DT, method=method)
+    assert up.p0.shape == (32, 1, 16) and up.y.shape == (1,), (up.p0.shape, up.y)
+    np.testing.assert_allclose(up.y, base.y)
+    np.testing.assert_allclose(up.p0[:, :, ::2], base.p0, atol=1e-9 * np.abs(base.p0).max())
+
+
 def test_positivity_clips_negative_values():
     g = rng.standard_normal((32, 10))
     a = reconstruct_grid(g, DX, DT, C, dz=C * DT).p0

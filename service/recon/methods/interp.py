@@ -57,7 +57,10 @@ KINDS = {
     "linear": ("FFT + linear interpolation (k-Wave style)", "FFT on the regular frequency grid + linear interpolation"),
     "nearest": ("FFT + nearest-neighbour interpolation",
                 "FFT on the regular frequency grid + nearest-neighbour interpolation"),
-    "cubic": ("FFT + cubic (pchip) interpolation", "FFT on the regular frequency grid + pchip interpolation"),
+    "cubic": ("FFT + cubic (pchip) interpolation",
+              "FFT on the regular frequency grid + pchip interpolation (not linear in the data: pchip's slopes "
+              "depend on the values, so a sum's image is not the sum of the images, nor a mirrored scan's the "
+              "mirror image: 0.45 % of a point source's image, 3 % on white noise)"),
 }
 
 #: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
