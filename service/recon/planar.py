@@ -23,8 +23,9 @@ non-equispaced ω with a type-2 NUFFT (error ~ eps); ``linear``, ``nearest`` int
 from the regular DFT grid of the mirrored series (k-Wave style); ``cubic`` interpolates it
 with pchip (Octave's interp2 'cubic'; its real and imaginary parts apart, and pchip's
 monotone slopes depend on the values: the only method here that is not linear in the data,
-nor exactly mirror-symmetric: 0.45 % of a point source's image, 3 % on white noise). NEDNER (`reconstruct_points`) replaces the lateral
-FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time samples.
+nor exactly mirror-symmetric: 0.45 % of a point source's image, 3 % on white noise).
+NEDNER (`reconstruct_points`) replaces the lateral FFT by a type-1 NUFFT (finufft) from the
+sensor positions, batched over time samples.
 """
 from __future__ import annotations
 
