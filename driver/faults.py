@@ -9,6 +9,13 @@ A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
 ``reset=K``            before acquiring point K (once), the device resets (new boot id)
 ``reset=K:N``          … each of the first N times it comes to point K (N ≥ 1): a device that
                        resets at one point over and over (N = 1000: every time, in practice)
+``stop=K``             before acquiring point K (once), the device ends its run (IDLE, no
+                       ``EVENT DONE``) with A-lines missing, a firmware fault the host restarts
+``stop=K:N``           … each of the first N times it comes to point K (N = 1000: every time)
+``upload_reset=C``     on the C-th ``PLAN:DATA`` chunk of a plan upload (once), the device resets
+``upload_reset=C:N``   … each of the first N uploads that come to chunk C (the chunk is lost)
+``event=K:TEXT``       before acquiring point K (once), the device sends ``EVENT TEXT`` and
+                       changes nothing (an event that does not hold: ``event=5:INTERLOCK 1``)
 ``interlock=K``        before acquiring point K (once), the laser interlock opens
 ``interlock=K:SEC``    … and closes again after SEC s
 ``seq=K:SEQ``          before acquiring point K (once), the data sequence skips to SEQ (a
@@ -55,6 +62,14 @@ class FaultSpec:
         Point k -> seconds the device goes silent before acquiring it (once).
     resets : dict[int, int]
         Point k -> how many times the device resets (new boot id) when it comes to it.
+    stops : dict[int, int]
+        Point k -> how many times the device ends its run (IDLE) when it comes to it.
+    upload_reset : tuple[int, int]
+        ``(C, N)``: the device resets on the C-th ``PLAN:DATA`` chunk of each of the next N plan
+        uploads that reach it (``(0, 0)``: never).
+    events : dict[int, str]
+        Point k -> the text of an ``EVENT`` frame the device sends before acquiring it, its state
+        unchanged (once).
     interlocks : dict[int, float]
         Point k -> seconds the laser interlock stays open from before acquiring it (once;
         ``inf``: until it is closed by hand).
@@ -75,6 +90,9 @@ class FaultSpec:
     drop: float = 0.0
     stalls: dict[int, float] = field(default_factory=dict)
     resets: dict[int, int] = field(default_factory=dict)
+    stops: dict[int, int] = field(default_factory=dict)
+    events: dict[int, str] = field(default_factory=dict)
+    upload_reset: tuple[int, int] = (0, 0)
     interlocks: dict[int, float] = field(default_factory=dict)
     seq_skips: dict[int, int] = field(default_factory=dict)
     bad_points: dict[int, int] = field(default_factory=dict)
@@ -114,11 +132,8 @@ class FaultSpec:
             if int(k) < 0 or not 0 <= seconds <= 3600:
                 raise ValueError("stall needs K >= 0 and 0 <= SEC <= 3600")
             self.stalls[int(k)] = seconds
-        elif key == "reset":
-            k, _, times = value.partition(":")
-            if int(k) < 0 or int(times or 1) < 1:
-                raise ValueError("reset needs K >= 0 and N >= 1")
-            self.resets[int(k)] = int(times or 1)
+        elif key in ("reset", "stop", "upload_reset", "event"):
+            self._add_device_fault(key, value)
         elif key == "interlock":
             k, _, sec = value.partition(":")
             seconds = float(sec) if sec else float("inf")
@@ -138,6 +153,22 @@ class FaultSpec:
             self.ignore_acks.add(int(value))
         else:
             raise ValueError("unknown fault")
+
+    def _add_device_fault(self, key: str, value: str) -> None:
+        """Add one ``reset``, ``stop``, ``upload_reset`` or ``event`` item; raises ``ValueError``."""
+        at, _, rest = value.partition(":")
+        if key == "event":
+            if int(at) < 0 or not rest.strip() or len(rest) > 64 or not rest.isprintable():
+                raise ValueError("event needs K >= 0 and a TEXT of 1-64 printable characters")
+            self.events[int(at)] = rest.strip()
+            return
+        first = 1 if key == "upload_reset" else 0  # a chunk is counted from 1, a point from 0
+        if int(at) < first or int(rest or 1) < 1:
+            raise ValueError(f"{key} needs {'C' if first else 'K'} >= {first} and N >= 1")
+        if key == "upload_reset":
+            self.upload_reset = (int(at), int(rest or 1))
+        else:
+            (self.resets if key == "reset" else self.stops)[int(at)] = int(rest or 1)
 
     def _add_field(self, value: str) -> None:
         """Add one ``field=K:NAME:V`` item; raises ``ValueError`` with what is wrong."""

@@ -159,8 +159,8 @@ def decode_frame(wire: bytes) -> Frame:
     Raises
     ------
     FrameError
-        Bad COBS encoding, a body shorter than header + CRC, a CRC mismatch, another
-        protocol version or an unknown frame type.
+        Bad COBS encoding, a body shorter than header + CRC or a payload over
+        :data:`MAX_PAYLOAD`, a CRC mismatch, another protocol version or an unknown frame type.
     """
     try:
         body = _cobs.decode(wire)
@@ -168,6 +168,8 @@ def decode_frame(wire: bytes) -> Frame:
         raise FrameError(f"bad COBS encoding: {exc}") from None
     if len(body) < HEADER.size + CRC.size:
         raise FrameError(f"frame of {len(body)} bytes is shorter than header + CRC")
+    if len(body) - HEADER.size - CRC.size > MAX_PAYLOAD:
+        raise FrameError(f"payload of {len(body) - HEADER.size - CRC.size} bytes is over the {MAX_PAYLOAD} allowed")
     (crc,) = CRC.unpack_from(body, len(body) - 4)
     if zlib.crc32(memoryview(body)[:-4]) != crc:
         raise FrameError("CRC-32 mismatch")
@@ -187,7 +189,8 @@ class Deframer:
 
     Damaged frames are counted in :attr:`errors` (and the last reason kept in
     :attr:`last_error`) and skipped; the stream resynchronises at the next 0x00.
-    A run of more than :data:`MAX_WIRE` bytes without a delimiter is discarded.
+    A run of more than :data:`MAX_WIRE` bytes without a delimiter is discarded, up to its
+    delimiter, however the bytes arrive (in one read or many: docs/protocol.md §2.1).
 
     Parameters
     ----------
@@ -207,22 +210,30 @@ class Deframer:
     def __init__(self, max_wire: int = MAX_WIRE):
         self._buf = b""
         self._max = max_wire
+        self._skipping = False  # inside an oversize run: its bytes are dropped up to its delimiter
         self.errors = 0
         self.frames = 0
         self.last_error = ""
 
     def feed(self, data: bytes) -> list[Frame]:
+        if self._skipping:
+            cut = data.find(b"\x00")
+            if cut < 0:
+                return []
+            data, self._skipping = data[cut + 1:], False
         if not data:
             return []
         parts = (self._buf + data).split(b"\x00") if self._buf else data.split(b"\x00")
         self._buf = parts.pop()
         if len(self._buf) > self._max:
-            self.errors += 1
-            self.last_error = "oversize frame discarded"
-            self._buf = b""
+            self._oversize()
+            self._buf, self._skipping = b"", True
         out = []
         for part in parts:
             if not part:
+                continue
+            if len(part) > self._max:
+                self._oversize()
                 continue
             try:
                 out.append(decode_frame(part))
@@ -232,6 +243,10 @@ class Deframer:
         self.frames += len(out)
         return out
 
+    def _oversize(self) -> None:
+        self.errors += 1
+        self.last_error = "oversize frame discarded"
+
     def reset(self) -> None:
         """Forget a partial frame (e.g. after a device reset)."""
-        self._buf = b""
+        self._buf, self._skipping = b"", False

@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     import serial
 
 __all__ = [
-    "MAX_RESETS", "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceFault", "DeviceStatus",
+    "MAX_RESETS", "MAX_IDLE_RUNS", "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceFault", "DeviceStatus",
     "ScanProgress", "ScanResult", "Scanner", "ScanSession",
 ]
 
@@ -62,6 +62,11 @@ _EARLY_MAX = 64  #: most A-line frames kept that overtook their run's SCAN:STAR 
 #: glitch, a watchdog): eight in one scan is a scanner that will not get through it, and a
 #: scanner that resets at one point every time would otherwise keep the host re-uploading forever
 MAX_RESETS = 8
+#: runs in a row that end (the device IDLE) with A-lines missing and none new on disk, after which
+#: the scan ends with a device fault (docs/protocol.md §7): a sound device ends a run early only when
+#: frames were lost on the link, and the next run delivers them; one that ends every run without a
+#: new A-line would otherwise be restarted for ever
+MAX_IDLE_RUNS = 3
 
 
 class DriverError(RuntimeError):
@@ -567,18 +572,49 @@ class Scanner:
             out.append((code, msg.strip('"')))
         return out
 
-    def upload_plan(self, plan: dict | str | os.PathLike) -> str:
+    def upload_plan(self, plan: dict | str | os.PathLike, *, on_reset: Callable[[], None] | None = None) -> str:
         """Upload a plan (dict or path) in chunks; verify its SHA-256 and ``PLAN:ID?``.
 
         Aborts a run the device still has (and clears a FAULT whose interlock closed)
-        first. Returns the plan id. Raises ``ValueError``
+        first. A device that resets during the upload (a new boot id after a refused or
+        unanswered step: docs/protocol.md §10) gets the whole upload again, up to
+        ``max_resets`` times in one call (``on_reset``, given, counts them instead: a scan's
+        resets). Returns the plan id. Raises ``ValueError``
         for a bad plan, :class:`DeviceError` if the device refuses it (over its limits,
-        hash mismatch) or :class:`DriverError` if the plan id read back differs.
+        hash mismatch), :class:`DriverError` if the plan id read back differs, or
+        :class:`DeviceFault` past the resets it recovers from.
         """
         plan = load_plan(plan)
         image = plan_image(plan)
-        st = self.status()
-        self._boot_id = st.boot_id
+        resets = 0
+        while True:
+            st = self.status()
+            self._boot_id = st.boot_id
+            try:
+                return self._upload(plan, image, st)
+            except DriverError:
+                if not self._reset_since(st.boot_id):
+                    raise
+            if st.boot_id not in self._old_boots:  # its A-lines, if any come, are stale (§10)
+                self._old_boots.append(st.boot_id)
+            self.faults["upload_resets"] += 1
+            if on_reset is not None:
+                on_reset()
+                continue
+            resets += 1
+            if resets > self.max_resets:
+                raise DeviceFault(f"the scanner reset {resets} times during the plan upload; the host recovers "
+                                  f"from {self.max_resets}")
+
+    def _reset_since(self, boot_id: int) -> bool:
+        """Whether the device now reports another boot id than ``boot_id`` (it reset)."""
+        try:
+            return self.status().boot_id != boot_id
+        except DriverError:
+            return False
+
+    def _upload(self, plan: dict, image: bytes, st: DeviceStatus) -> str:
+        """:meth:`upload_plan`'s steps once, from the device's status ``st``."""
         if st.state in ("RUNNING", "PAUSED", "FAULT"):
             # ends a run a previous host left, and clears a fault whose cause is gone (a
             # closed interlock); an open interlock stays FAULT and SCAN:STAR will say so
@@ -663,8 +699,9 @@ class Scanner:
         return (f["bad_frames"] + f["bad_alines"] + f["naks"] + f["command_retries"]
                 + f["stall_polls"] + f["resets"] + f["upload_retries"])
 
-    def _recover_reset(self, plan: dict) -> None:
-        """The device rebooted: wait for it, re-identify and re-upload the plan."""
+    def _recover_reset(self, plan: dict, on_reset: Callable[[], None] | None = None) -> None:
+        """The device rebooted: wait for it, re-identify and re-upload the plan (``on_reset``: a
+        reset during that upload, :meth:`upload_plan`)."""
         if self._boot_id is not None and self._boot_id not in self._old_boots:
             self._old_boots.append(self._boot_id)
         deadline = time.monotonic() + self.response_timeout
@@ -675,7 +712,7 @@ class Scanner:
             except DeviceTimeout:
                 if time.monotonic() > deadline:
                     raise
-        self.upload_plan(plan)
+        self.upload_plan(plan, on_reset=on_reset)
 
     def _leave_idle(self) -> None:
         """Best effort after a failure: abort the run this host started."""
@@ -776,6 +813,7 @@ class ScanSession:
         self.last_prog = 0.0
         self.aborted = False
         self.resets = 0  #: device resets (or plans lost) recovered in this call
+        self.idle_runs = 0  #: runs in a row that ended with A-lines missing and none new (MAX_IDLE_RUNS)
         # silence that means a stall: at least stall_timeout, and 3 point periods at the
         # plan's PRF (a slow laser or many averages is not a stall)
         prf = float(acq.get("prf") or 0.0)
@@ -821,14 +859,17 @@ class ScanSession:
         sc, plan = self.sc, self.plan
         if upload:
             sc.identify()
-            sc.upload_plan(plan)
+            sc.upload_plan(plan, on_reset=self._count_reset)
             return
         # the caller uploaded it: check that the device holds this plan
         sc._boot_id = sc.status().boot_id
         held = sc.query(cmd.PLAN_ID).strip()
-        if held != plan["id"]:
-            raise DriverError(f"device holds plan {held}, not {plan['id']}; "
-                              "scan with upload=True")
+        if held == "NONE":  # no plan: the device reset since that upload (docs/protocol.md §10)
+            self._count_reset()
+            sc._recover_reset(plan, self._count_reset)
+        elif held != plan["id"]:
+            raise DriverError(f"device holds plan {held}, not {plan['id']}: another host uploaded a plan "
+                              "since (Scanner.scan(..., upload=True) uploads this one again)")
 
     def _acquire(self) -> None:
         """Runs from the first missing A-line until the record is complete or aborted."""
@@ -841,7 +882,7 @@ class ScanSession:
                 if exc.code != 103:
                     raise
                 self._count_reset()  # "no plan": the device reset since the upload
-                sc._recover_reset(self.plan)
+                sc._recover_reset(self.plan, self._count_reset)
                 continue
             try:
                 run_id, first_seq = (int(x) for x in reply.split(","))
@@ -857,6 +898,7 @@ class ScanSession:
             early, self.early = self.early, []
             for fr in early:
                 self.on_aline(fr)
+            before = int(self.done_s.sum())
             self.send_ack()
             outcome = self._stream()
             self.current = None
@@ -867,7 +909,19 @@ class ScanSession:
             if outcome == "reset":
                 self._count_reset()
                 self.report("recovering", force=True)
-                sc._recover_reset(self.plan)
+                sc._recover_reset(self.plan, self._count_reset)
+            elif int(self.done_s.sum()) > before:
+                self.idle_runs = 0
+            elif not self.done_s.all():
+                self._count_idle_run()
+
+    def _count_idle_run(self) -> None:
+        """Count one run that ended (the device IDLE) with A-lines missing and none new on disk; the
+        one past `MAX_IDLE_RUNS` in a row raises :class:`DeviceFault` instead of a new ``SCAN:STAR``."""
+        self.idle_runs += 1
+        if self.idle_runs > MAX_IDLE_RUNS:
+            self._raise_fault(f"the scanner ended {self.idle_runs} runs in a row without a new A-line "
+                              f"(it reports IDLE with A-lines missing); the host restarts {MAX_IDLE_RUNS}")
 
     def _count_reset(self) -> None:
         """Count one device reset of this scan (a new boot id, or a plan lost: the device reset
@@ -1003,8 +1057,10 @@ class ScanSession:
                 self._raise_fault(run.fault)
             if run.reset_seen:
                 return "reset"
-            if run.interlock:
-                self._raise_interlock()
+            if run.interlock:  # an event is a hint (docs/protocol.md §9.3): the device's state decides
+                run.interlock = False
+                if sc.status().state == "FAULT":
+                    self._raise_interlock()
             self._acknowledge()
             if self.done_s.all():
                 self.send_ack()

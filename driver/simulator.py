@@ -181,6 +181,10 @@ class SimConfig:
 _Error = scpi.ScpiError
 
 
+class _LostInReset(Exception):
+    """A command the device reset on while receiving it: no reply (the reset lost it)."""
+
+
 class _Held:
     """:meth:`SimulatedScanner.hold`'s context: entering asks the device loop to park and
     waits until it has (the step it was in, and any reply of it, done), so nothing sent from
@@ -223,8 +227,8 @@ class SimulatedScanner:
         The pty's device path for the host (``/dev/pts/N``).
     stats : collections.Counter
         Counts of what the device did: ``alines`` sent, ``tx_bytes``, ``resent``, ``timeouts``,
-        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``seq_skips``,
-        ``internal_errors``.
+        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``early_stops``,
+        ``false_events``, ``seq_skips``, ``internal_errors``.
 
     Raises
     ------
@@ -253,6 +257,9 @@ class SimulatedScanner:
         self._fault_rng = np.random.default_rng([self.config.seed, 1])
         self._stalls = dict(self.config.faults.stalls)
         self._resets = dict(self.config.faults.resets)
+        self._stops = dict(self.config.faults.stops)
+        self._upload_reset_at, self._upload_resets = self.config.faults.upload_reset
+        self._events = dict(self.config.faults.events)
         self._interlocks = dict(self.config.faults.interlocks)
         self._seq_skips = dict(self.config.faults.seq_skips)
         self._bad_points = dict(self.config.faults.bad_points)
@@ -297,6 +304,14 @@ class SimulatedScanner:
         reply made by an event (the host has resent its command) rather than by a clock."""
         return _Held(self)
 
+    def reset(self) -> None:
+        """Reset the device now, as a power glitch or a watchdog would (docs/protocol.md §10): a
+        new boot id; its plan, run and unacknowledged A-lines lost; ``EVENT BOOT`` sent. Counted
+        in ``stats["resets"]``."""
+        with self.hold():
+            self.stats["resets"] += 1
+            self._do_reset()
+
     @property
     def boot_id(self) -> int:
         return self._boot_id
@@ -314,6 +329,7 @@ class SimulatedScanner:
         self._order: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64),) * 2
         self._plan_image = bytearray()
         self._plan_expected = 0
+        self._plan_chunks = 0  # PLAN:DATA commands since the last PLAN:BEG (the upload_reset fault)
         self._plan_hash = ""
         self._pressure: PressureFn | None = None
         self._blocks: dict[int, Future] = {}
@@ -460,6 +476,8 @@ class SimulatedScanner:
             try:
                 reply = self._execute(frame.payload)
                 wire = encode_frame(FrameType.RSP, reply, ack=frame.seq)
+            except _LostInReset:
+                return
             except _Error as err:
                 self._push_error(err.code, err.message)
                 wire = encode_frame(FrameType.ERR, f'{err.code},"{err.message}"'.encode(),
@@ -589,7 +607,7 @@ class SimulatedScanner:
 
     def _fault_before(self, k: int, now: float) -> bool:
         """Inject the faults set for A-line ``k`` (:mod:`fpscan.driver.faults`); True when one
-        stops the acquisition (a stall, a reset or an open interlock)."""
+        stops the acquisition (a stall, a reset, an early end of the run or an open interlock)."""
         if k in self._stalls:
             self._stall_until = now + self._stalls.pop(k)
             self.stats["stalls"] += 1
@@ -601,6 +619,16 @@ class SimulatedScanner:
             self.stats["resets"] += 1
             self._do_reset()
             return True
+        if k in self._stops:  # a firmware fault: the run ends with A-lines missing
+            self._stops[k] -= 1
+            if not self._stops[k]:
+                del self._stops[k]
+            self.stats["early_stops"] += 1
+            self._state = "IDLE"
+            return True
+        if k in self._events:  # an event that does not hold: the state stays as it is
+            self._send(FrameType.EVENT, self._events.pop(k).encode("ascii", "replace"))
+            self.stats["false_events"] += 1
         if k in self._interlocks:
             duration = self._interlocks.pop(k)
             self._interlock_until = now + duration if math.isfinite(duration) else math.inf
@@ -772,12 +800,19 @@ class SimulatedScanner:
         self._blocks.clear()
         self._plan_image = bytearray()
         self._plan_expected = n
+        self._plan_chunks = 0
         self._plan_hash = ""
 
     def _cmd_plan_data(self, cmd: scpi.Command) -> None:
         self._require_idle()
         if self._plan_expected == 0:
             raise _Error(-200, "Execution error; PLAN:DATA without PLAN:BEG")
+        self._plan_chunks += 1
+        if self._upload_resets and self._plan_chunks == self._upload_reset_at:
+            self._upload_resets -= 1  # a fault: the device resets on this chunk, which is lost with it
+            self.stats["resets"] += 1
+            self._do_reset()
+            raise _LostInReset
         offset = scpi.int_arg(cmd, 0)
         block = cmd.block
         if block is None:

@@ -456,9 +456,10 @@ def _unknown(source: Source, choices: tuple[str, ...]) -> str:
 
 #: what a format's reader raises on a file whose structure its own checks did not foresee (a
 #: missing key, a string where a number belongs, an index past an array, a number past float's
-#: range, an allocation past memory): :func:`load` turns these into a ``ValueError`` naming the
-#: format, as a file the reader refused with its own reason
-UNREADABLE = (KeyError, IndexError, TypeError, AttributeError, ArithmeticError, MemoryError)
+#: range): :func:`load` turns these into a ``ValueError`` naming the format, as a file the reader
+#: refused with its own reason. A ``MemoryError`` stays one: the bounded import's child names the
+#: memory limit it met (``fpscan.service.formats.untrusted.run_bounded``)
+UNREADABLE = (KeyError, IndexError, TypeError, AttributeError, ArithmeticError)
 
 
 def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = MAX_BYTES,
@@ -506,7 +507,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
         A name not in ``choices``; a file no format fits, that is refused, or of a detected
         format not in ``choices``; a format without a reader; a wavelength index out of
         range; what the format's ``load`` raises (a ``KeyError``, ``IndexError``, ``TypeError``,
-        ``AttributeError``, ``ArithmeticError`` or ``MemoryError`` of its reader
+        ``AttributeError`` or ``ArithmeticError`` of its reader
         too, as a ``ValueError`` naming the format: `UNREADABLE`); a bounded read that did not end
         in time.
     FileNotFoundError

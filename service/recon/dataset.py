@@ -655,8 +655,10 @@ def _check_points(ds: PointDataset, spacings: dict[str, float]) -> int:
         finite_array("the dataset's A-lines", ds.alines, (2,))
     if ds.weights is not None:
         w = np.asarray(ds.weights)
-        if w.shape != (n,) or w.dtype.kind not in "iuf" or not np.isfinite(w).all() or (w < 0).any():
-            raise ValueError(f"the dataset's weights must be {n} finite numbers >= 0 (m², m on a line), one per A-line")
+        if w.shape != (n,):
+            raise ValueError(f"the dataset's weights must have shape ({n},), one per A-line, got {w.shape}")
+        if w.dtype.kind not in "iuf" or not np.isfinite(w).all() or (w < 0).any():
+            raise ValueError("the dataset's weights must be finite numbers >= 0 (m², m on a line)")
     for name, axis in zip(("dx", "dy"), ds.grid):
         steps = np.diff(np.asarray(axis, dtype=np.float64).reshape(-1))
         if steps.size:

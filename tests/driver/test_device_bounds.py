@@ -35,7 +35,7 @@ import pytest
 from fpscan.driver.acquire import acquire
 from fpscan.driver.commands import MIN_CHUNK
 from fpscan.driver.faults import FaultSpec
-from fpscan.driver.host import MAX_RESETS, DeviceFault, DeviceTimeout, Scanner
+from fpscan.driver.host import MAX_IDLE_RUNS, MAX_RESETS, DeviceFault, DeviceTimeout, Scanner
 from fpscan.driver.scanfile import ScanFile, read_scan
 from fpscan.driver.transport import THREAD_QUEUE_BYTES
 from tests.driver.driver_helpers import grid_plan
@@ -79,6 +79,81 @@ def test_a_scanner_that_resets_over_and_over_is_a_device_fault(tmp_path):
             assert res.complete and res.points_done == n
             assert sim.stats["resets"] == 2 * (MAX_RESETS + 1)
     assert_matches_record(out, tmp_path / "truth.h5", plan)
+
+
+def test_a_scanner_that_ends_its_runs_early_is_restarted_then_a_device_fault(tmp_path):
+    """A device that ends its run (IDLE, A-lines missing) each time it comes to A-line 12: the host
+    restarts it from the first missing A-line, and after MAX_IDLE_RUNS runs in a row that bring no new
+    A-line ends the scan with a ``DeviceFault`` (it restarted for ever); a device that ends its run there
+    only twice is restarted and completes the file bit for bit."""
+    plan = grid_plan(6, 5, n_t=64)
+    out = tmp_path / "scan.h5"
+    with make_sim(tmp_path, faults=FaultSpec.parse("stop=12:1000"), seed=5) as sim:
+        with pytest.raises(DeviceFault) as info:
+            acquire(sim.path, plan, out)
+        msg = str(info.value)
+        assert f"ended {MAX_IDLE_RUNS + 1} runs in a row without a new A-line" in msg, msg
+        assert "12 of 30 A-lines are on disk, re-run to resume" in msg, msg
+        assert sim.stats["early_stops"] == MAX_IDLE_RUNS + 2  # the first run's end, then MAX_IDLE_RUNS + 1 idle
+    assert np.array_equal(read_scan(out).completed, np.arange(30) < 12)
+    again = tmp_path / "again.h5"
+    with make_sim(tmp_path, faults=FaultSpec.parse(f"stop=12:{MAX_IDLE_RUNS - 1}"), seed=5) as sim:
+        res = acquire(sim.path, plan, again)
+        assert res.complete and res.points_done == 30
+        assert sim.stats["early_stops"] == MAX_IDLE_RUNS - 1
+    assert_matches_record(again, tmp_path / "truth.h5", plan)
+
+
+def test_a_reset_during_the_plan_upload_is_recovered(tmp_path):
+    """A device that resets on the 2nd ``PLAN:DATA`` chunk of an upload (the chunk lost with it): the
+    upload starts again from ``PLAN:BEG`` (it ended with "PLAN:DATA without PLAN:BEG"), whether it is
+    ``acquire``'s, before the scan file exists, or a scan's own, where the reset counts as one of the
+    scan's (as a reset at A-line 5 and its recovery upload do); the scans complete bit for bit."""
+    plan = grid_plan(6, 5, n_t=64)
+    out = tmp_path / "scan.h5"
+    with make_sim(tmp_path, faults=FaultSpec.parse("upload_reset=2"), seed=6, max_chunk=64) as sim:
+        res = acquire(sim.path, plan, out)
+        assert res.complete and res.points_done == 30, res
+        assert sim.stats["resets"] == 1 and res.faults["upload_resets"] == 1, res.faults
+    assert_matches_record(out, tmp_path / "truth.h5", plan)
+    out = tmp_path / "scan-in-scan.h5"
+    with make_sim(tmp_path, faults=FaultSpec.parse("reset=5,upload_reset=2:2"), seed=6, max_chunk=64) as sim:
+        with Scanner(sim.path) as sc:
+            with ScanFile.create(out, plan, instrument=sc.identify(), software_version="test") as sink:
+                res = sc.scan(plan, sink, upload=True)
+        assert res.complete and res.points_done == 30, res
+        assert sim.stats["resets"] == 3
+        assert res.faults["upload_resets"] == 2 and res.faults["resets"] == 3, res.faults
+    assert_matches_record(out, tmp_path / "truth.h5", plan)
+
+
+def test_a_reset_between_the_upload_and_the_scan_is_recovered(tmp_path):
+    """The device resets after the plan was uploaded and before the scan that relies on it (``upload=False``,
+    as ``acquire`` scans a new file): its ``PLAN:ID?`` answers ``NONE``, and the scan uploads the plan again,
+    counting one reset (it stopped with "device holds plan NONE ...; scan with upload=True")."""
+    plan = grid_plan(6, 5, n_t=64)
+    out = tmp_path / "scan.h5"
+    with make_sim(tmp_path, seed=8) as sim:
+        with Scanner(sim.path) as sc:
+            instrument = sc.identify()
+            sc.upload_plan(plan)
+            sim.reset()
+            with ScanFile.create(out, plan, instrument=instrument, software_version="test") as sink:
+                res = sc.scan(plan, sink, upload=False)
+        assert res.complete and res.points_done == 30 and res.faults["resets"] == 1, res.faults
+        assert sim.stats["resets"] == 1
+    assert_matches_record(out, tmp_path / "truth.h5", plan)
+
+
+def test_a_scanner_that_resets_on_every_upload_is_a_device_fault(tmp_path):
+    plan = grid_plan(6, 5, n_t=64)
+    with make_sim(tmp_path, faults=FaultSpec.parse("upload_reset=2:1000"), seed=7, max_chunk=64) as sim:
+        with Scanner(sim.path, max_resets=2) as sc:
+            sc.identify()
+            with pytest.raises(DeviceFault, match="the scanner reset 3 times during the plan upload; the host "
+                                                  "recovers from 2"):
+                sc.upload_plan(plan)
+        assert sim.stats["resets"] == 3
 
 
 def test_max_resets_sets_the_bound(tmp_path):

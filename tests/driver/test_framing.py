@@ -10,6 +10,8 @@ from hypothesis import strategies as st
 from fpscan.driver.aline import ALINE_HEADER, pack_aline, unpack_aline
 from fpscan.driver.commands import ScpiError, block, canonical_header, parse_command
 from fpscan.driver.framing import (
+    MAX_PAYLOAD,
+    MAX_WIRE,
     PROTOCOL_VERSION,
     Deframer,
     FrameError,
@@ -85,6 +87,31 @@ def test_deframer_resynchronises_after_garbage_and_drops():
     # glued to frame 0: only frame 2 survives intact, and everything damaged is counted
     assert [f.payload for f in frames] == [b"E2"]
     assert d.errors == 3
+
+
+def _oversize_wire(n_payload: int) -> bytes:
+    """A frame of ``n_payload`` bytes, well formed but for its size (encode_frame refuses it)."""
+    import struct
+    import zlib
+
+    body = struct.pack("<BBHII", PROTOCOL_VERSION, int(FrameType.EVENT), 0, 0, 0) + b"\x01" * n_payload
+    return cobs.encode(body + struct.pack("<I", zlib.crc32(body))) + b"\x00"
+
+
+@pytest.mark.parametrize("read", [None, 4096, 7])
+def test_an_oversize_frame_is_discarded_however_it_is_read(read):
+    """A run over MAX_WIRE bytes is discarded up to its delimiter whether it arrives in one read or
+    many (docs/protocol.md §2.1; in one read it was decoded, payload and all), and the frame after it
+    is received."""
+    stream = _oversize_wire(MAX_PAYLOAD + 34_000) + encode_frame(FrameType.EVENT, b"after")
+    assert len(stream) > MAX_WIRE
+    d = Deframer()
+    step = read or len(stream)
+    frames = [f for i in range(0, len(stream), step) for f in d.feed(stream[i:i + step])]
+    assert [f.payload for f in frames] == [b"after"]
+    assert d.errors == 1 and d.last_error == "oversize frame discarded"
+    with pytest.raises(FrameError, match=f"over the {MAX_PAYLOAD} allowed"):
+        decode_frame(_oversize_wire(MAX_PAYLOAD + 1)[:-1])
 
 
 def test_aline_payload_roundtrip():

@@ -126,6 +126,20 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
     assert read_scan(tmp_path / "scan.h5").completed.sum() == res.points_done
 
 
+def test_an_interlock_event_the_device_state_denies_does_not_stop_the_scan(tmp_path):
+    """Events are hints (docs/protocol.md §9.3): an ``EVENT INTERLOCK 1`` from a device whose state is
+    RUNNING (the interlock closed) is checked with ``SCAN:STAT?`` and the scan goes on to the end
+    (it stopped with "Laser interlock open", a false reason, at that A-line)."""
+    plan = grid_plan(6, 5, n_t=64)
+    # the stall holds A-line 5 back 0.5 s, so that the event comes within the run the host follows
+    # (an event that overtakes the SCAN:STAR reply has no run to be about)
+    with make_sim(tmp_path, faults=FaultSpec.parse("stall=5:0.5,event=5:INTERLOCK 1")) as sim:
+        res = acquire(sim.path, plan, tmp_path / "scan.h5")
+        assert sim.stats["false_events"] == 1
+    assert res.complete and res.points_done == 30
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+
+
 def test_interlock_stops_scan_with_clear_error(tmp_path):
     plan = grid_plan(20, 10, n_t=128)
     with make_sim(tmp_path, faults=FaultSpec.parse("interlock=120")) as sim:
