@@ -208,9 +208,9 @@ class ScanProgress:
     n_points : int
         Points of the plan.
     rate : float
-        A-lines/s landed in this call of scan().
+        A-lines/s landed in this call of scan(), over its acquiring time (pauses not counted).
     eta_s : float
-        Remaining A-lines / rate, s (inf if unknown).
+        Remaining A-lines / rate, s (inf if unknown, and while paused).
     faults_recovered : int
         Link faults recovered so far (bad frames, NAKs, timeouts, resets).
     state : str
@@ -225,8 +225,8 @@ class ScanProgress:
 
     points_done: int  #: points complete in the sink (at every wavelength)
     n_points: int
-    rate: float  #: A-lines/s landed in this call of scan()
-    eta_s: float  #: remaining A-lines / rate (inf if unknown)
+    rate: float  #: A-lines/s landed in this call of scan(), pauses not counted
+    eta_s: float  #: remaining A-lines / rate (inf if unknown, and while paused)
     faults_recovered: int  #: link faults recovered so far (bad frames, NAKs, timeouts, resets)
     state: str  #: "running", "paused", "recovering", "done", "aborted"
     elapsed_s: float
@@ -251,7 +251,7 @@ class ScanResult:
     elapsed_s : float
         The whole call, s.
     acquisition_s : float
-        From the first SCAN:STAR reply to the last new A-line, s.
+        From the first SCAN:STAR reply to the last new A-line, less the time paused, s.
     alines_received : int
         New A-line frames received (first copies; points may repeat).
     faults : dict
@@ -810,6 +810,8 @@ class ScanSession:
         self.done0 = self.done = int(self.done_s.sum())
         self.t_first: float | None = None
         self.t_last: float | None = None
+        self.paused_s = 0.0  #: time paused so far (ended pauses), s: not acquiring time
+        self.paused_since: float | None = None  #: when the pause now on began
         self.last_prog = 0.0
         self.aborted = False
         self.resets = 0  #: device resets (or plans lost) recovered in this call
@@ -939,7 +941,7 @@ class ScanSession:
         faults = {k: v for k, v in self.sc.faults.items() if v}
         link = {k: v for k, v in self.counters.items() if k != "alines"}
         link.update((k, v) for k, v in self.sc.link_stats.items() if v)
-        acq = ((self.t_last or t_end) - self.t_first) if self.t_first else 0.0
+        acq = ((self.t_last or t_end) - self.t_first - self.paused_s) if self.t_first else 0.0  # pauses not counted
         return ScanResult(self.n, int(self.record.all(axis=0).sum()), bool(self.done_s.all()),
                           self.aborted, t_end - self.t_start, acq, self.counters["alines"],
                           faults, link, self.done_s.size, int(self.done_s.sum()))
@@ -951,8 +953,9 @@ class ScanSession:
             return
         self.last_prog = now
         t_first = self.t_first or now
-        rate = (self.done - self.done0) / max(now - t_first, 1e-9)
-        eta = (self.done_s.size - self.done) / rate if rate > 0 else float("inf")
+        paused = self.paused_s + (now - self.paused_since if self.paused_since is not None else 0.0)
+        rate = (self.done - self.done0) / max(now - t_first - paused, 1e-9)  # over the time spent acquiring
+        eta = (self.done_s.size - self.done) / rate if rate > 0 and self.paused_since is None else float("inf")
         points = int(self.record.all(axis=0).sum()) if self.n_w > 1 else self.done
         self.progress(ScanProgress(points, self.n, rate, eta, self.sc.faults_recovered(), label,
                                now - self.t_start, self.done, self.done_s.size))
@@ -1087,11 +1090,15 @@ class ScanSession:
             if what == "pause" and not paused:
                 sc.query(cmd.SCAN_PAUSE)
                 paused = True
+                self.paused_since = time.monotonic()
             elif what == "resume" and paused:
                 sc.query(cmd.SCAN_RESUME)
                 paused = False
                 run = self._run()
                 run.last_rx = run.last_new = time.monotonic()
+                if self.paused_since is not None:
+                    self.paused_s += run.last_rx - self.paused_since
+                    self.paused_since = None
         return paused, None
 
     def _acknowledge(self) -> None:

@@ -28,7 +28,7 @@ except ImportError:  # pragma: no cover -- fpscan.driver.units is part of every 
 __all__ = ["UsageError", "wrong_file", "check_input_files", "sniff_format", "add_server_options", "default_dtype",
            "EXTRA_OF_MODULE", "missing_extra", "needs_extra", "speed", "add_progress_option", "make_client",
            "TOKEN_HINT", "client_errors", "remember_job", "unreachable_hint", "describe_progress", "PROGRESS_PERIOD_S",
-           "progress_period", "ProgressBar", "quantity", "format_bytes", "check_out_writable", "full_job_id",
+           "progress_period", "ProgressBar", "quantity", "seconds", "seed", "format_bytes", "check_out_writable", "full_job_id",
            "delete_each"]
 
 
@@ -459,7 +459,7 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
         parts.append(f"{done or 0}/{total} points")
     rate = progress.get("rate_per_s")
     if rate:
-        parts.append(f"{rate:.0f} points/s")
+        parts.append(f"{rate:.0f} A-lines/s")  # rate_per_s counts A-lines (points × wavelengths)
     if progress.get("eta_s") is not None and progress.get("stage") not in ("done", "aborted"):
         most, limit = progress.get("iterations_left_max"), progress.get("eta_max_s")
         if most is not None and progress.get("eta_basis") == "stopping rule":  # an estimate, and its bound

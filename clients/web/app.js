@@ -921,7 +921,7 @@ function showProgress(job) {
     $("scan-progress-label").textContent = Math.round(frac * 100) + " %";
   }
   if (p.points_total !== undefined) $("scan-points").textContent = `${p.points_done ?? 0} / ${p.points_total}`;
-  if (p.rate_per_s !== undefined) $("scan-rate").textContent = p.rate_per_s === null ? "–" : fmtNum(p.rate_per_s) + " points/s";
+  if (p.rate_per_s !== undefined) $("scan-rate").textContent = p.rate_per_s === null ? "–" : fmtNum(p.rate_per_s) + " A-lines/s";
   if (p.eta_s !== undefined) $("scan-eta").textContent = fmtDuration(p.eta_s);
   if (p.faults_recovered !== undefined) $("scan-faults").textContent = String(p.faults_recovered ?? 0);
 }

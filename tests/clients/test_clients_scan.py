@@ -194,7 +194,7 @@ def test_abort_ends_cancelled(slow_scanner):
 
 def test_progress_bar_on_a_terminal(slow_scanner):
     """`fpscan jobs wait` on a real terminal (a pty) while a 50 Hz scan runs draws the rich
-    progress bar with the points done, points/s and the ETA, and ends at all points."""
+    progress bar with the points done, A-lines/s and the ETA, and ends at all points."""
     import os
     import pty
     import select
@@ -230,7 +230,7 @@ def test_progress_bar_on_a_terminal(slow_scanner):
         os.close(master)
     text = out.decode(errors="replace")
     assert f"{N * N}/{N * N} points" in text
-    assert "points/s" in text and "ETA" in text
+    assert "A-lines/s" in text and "ETA" in text
     assert "succeeded" in text
 
 

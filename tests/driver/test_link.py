@@ -2,6 +2,7 @@
 scan files (fpscan.driver.scanfile), ground truth from the simulator's own HDF5 record."""
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -110,6 +111,11 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
         done_paused = seen[-1].points_done
         time.sleep(0.5)
         assert seen[-1].points_done == done_paused and seen[-1].state == "paused"
+        # a pause is not acquiring time: while paused the rate holds (it fell with every report) and
+        # no end is predicted (the ETA grew)
+        paused = [p for p in seen if p.state == "paused"]
+        assert len(paused) >= 2 and all(math.isinf(p.eta_s) for p in paused), paused
+        assert max(p.rate for p in paused) == pytest.approx(min(p.rate for p in paused), rel=1e-9), paused
         sc.resume()
         while seen[-1].points_done < done_paused + 50 and time.monotonic() < deadline:
             time.sleep(0.02)

@@ -88,6 +88,7 @@ def test_restart_recovery_in_the_store(tmp_path):
         store.recover("another", max_attempts=99)
     for job in (recon, scan, tired):
         assert store.claim(job["id"], "old-server", 10) is not None
+    store.update_progress(scan["id"], {"stage": "acquiring", "fraction": 0.2, "eta_s": 3.1})
     store.close()
     # a new server instance opens the same file
     store = JobStore(db)
@@ -96,6 +97,10 @@ def test_restart_recovery_in_the_store(tmp_path):
     assert store.get(recon["id"])["state"] == "queued" and store.get(recon["id"])["attempts"] == 1
     assert store.get(scan["id"])["state"] == "paused"
     assert store.get(scan["id"])["progress"]["stage"] == "interrupted"
+    # the scan's attempt ended at the restart: no end is predicted, and a resume times the next attempt
+    assert store.get(scan["id"])["progress"].get("eta_s") is None
+    assert [a["reason"] for a in store.get(scan["id"])["earlier_attempts"]] == ["server restarted"]
+    assert store.get(scan["id"])["started"] is None
     assert store.get(tired["id"])["state"] == "failed"
     assert store.get(waiting["id"])["state"] == "queued"
     events = [e["event"] for e in store.events_after(recon["id"], 0)]

@@ -195,6 +195,8 @@ class JobTransitions(JobRecords):
                     prog = json.loads(db.execute("SELECT progress FROM jobs WHERE id = ?",
                                                  (row["id"],)).fetchone()[0])
                     prog["stage"] = "interrupted"
+                    prog["eta_s"] = None  # stopped: no end to predict until it is resumed
+                    _cut_attempt(db, row["id"], "server restarted", self._now())  # a resume starts the next
                     db.execute("UPDATE jobs SET state = 'paused', lease_owner = NULL, lease_until = NULL,"
                                " control = NULL, progress = ? WHERE id = ?", (json.dumps(prog), row["id"]))
                     self._event(db, row["id"], "state", {"state": "paused", "reason": "server restarted"})
