@@ -4,6 +4,7 @@ reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE s
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from fpscan.clients.cli.common import (
     add_progress_option,
@@ -13,13 +14,15 @@ from fpscan.clients.cli.common import (
     seconds,
 )
 
-__all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run", "mask_words"]
+__all__ = ["COMMAND", "HELP", "STATES", "KINDS", "PAGE", "add_arguments", "run", "mask_words"]
 
 COMMAND = "jobs"
 HELP = "list, get, wait on, resume (a paused scan), cancel or delete the server's jobs (scans, reconstructions)"
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 KINDS = ("scan", "recon")
+#: jobs a page of ``fpscan jobs list`` asks for (the server's default and at most 1000)
+PAGE = 200
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("list", help="list jobs", description="List jobs, newest first.")
     p.add_argument("--state", choices=STATES, help="only jobs in this state")
     p.add_argument("--kind", choices=KINDS, help="only jobs of this kind")
+    p.add_argument("--limit", type=int, default=PAGE, metavar="N",
+                   help=f"the N newest (default {PAGE}; a note on stderr says when there are more)")
+    p.add_argument("--all", action="store_true", help="every job, a page at a time")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--ids", action="store_true", help="print only the full job ids, one per line, newest first "
                    "(for scripts: JOB=$(fpscan jobs list --kind recon --ids | head -1))")
@@ -80,6 +86,32 @@ def mask_words(mask: object) -> str:
     return f"{mask.get('kind') or 'points'}, {mask.get('n_points')} of {total} points"
 
 
+def _listed(api: Any, args: argparse.Namespace) -> list:
+    """The jobs ``jobs list`` prints: the ``--limit`` newest, or with ``--all`` every page
+    (``GET /api/jobs?before=``); a note on stderr where more exist than it prints."""
+    import sys
+
+    from fpscan.clients.cli.common import UsageError
+    from fpscan.clients.http import field_of
+
+    if not 1 <= args.limit <= 1000:
+        raise UsageError(f"--limit must be 1 to 1000, got {args.limit}")
+    jobs: list = []
+    page = api.list_jobs(state=args.state, kind=args.kind, limit=args.limit)
+    while True:
+        jobs += page
+        if len(page) < args.limit:
+            return jobs
+        more = api.list_jobs(state=args.state, kind=args.kind, limit=1 if not args.all else args.limit,
+                             before=field_of(page[-1], "id"))
+        if not args.all:
+            if more:
+                print(f"fpscan jobs list: the {len(jobs)} newest shown; more with --all or --limit",
+                      file=sys.stderr)
+            return jobs
+        page = more
+
+
 def _what(job: object) -> str:  # a Job model or its dict
     """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan; for a reconstruction its method,
     input and what the input samples: ``nedner of scan 5e6f7a8b (equisteradian, 400 of 9216
@@ -122,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
 
     with make_client(args) as api:
         if args.action == "list":
-            jobs = api.list_jobs(state=args.state, kind=args.kind)
+            jobs = _listed(api, args)
             if args.json:
                 print(json.dumps([to_dict(j) for j in jobs], indent=2))
                 return 0

@@ -1305,12 +1305,29 @@ function jobWhat(j) {
   return `${p.method ?? "?"} of ${source}` + (words ? ` (${words})` : "");
 }
 
+// the Jobs view shows a page of jobs (the table's data-page, 200): the newest, or those before jobsBefore (a job id)
+function jobsPage() { return Number($("jobs-table").dataset.page) || 200; }
+let jobsBefore = null;
 async function refreshJobs() {
   const params = new URLSearchParams();
   if ($("jobs-state").value) params.set("state", $("jobs-state").value);
   if ($("jobs-kind").value) params.set("kind", $("jobs-kind").value);
-  const q = params.toString();
-  const jobs = asList(await apiJson("/api/jobs" + (q ? "?" + q : "")), "jobs");
+  const pageSize = jobsPage();
+  params.set("limit", String(pageSize));
+  if (jobsBefore) params.set("before", jobsBefore);
+  let jobs;
+  try {
+    jobs = asList(await apiJson("/api/jobs?" + params.toString()), "jobs");
+  } catch (err) {
+    if (!jobsBefore || err.status !== 404) throw err;
+    jobsBefore = null;  // the page began at a job deleted since: back to the newest
+    return refreshJobs();
+  }
+  const older = jobs.length === pageSize ? String(jobs[jobs.length - 1].id) : null;
+  $("jobs-older").hidden = !older;
+  $("jobs-older").dataset.before = older || "";
+  $("jobs-newest").hidden = !jobsBefore;
+  $("jobs-paging").hidden = !older && !jobsBefore;
   const tbody = $("jobs-body");
   const seen = new Set();
   let prev = null;
@@ -1624,8 +1641,9 @@ function renderUnmix(job, u) {
 
 /** The reconstruction jobs made from scan ``scanId`` (from the job list). */
 async function listScanRecons(scanId) {
-  const jobs = asList(await apiJson("/api/jobs?kind=recon"), "jobs")
-    .filter((j) => j.params && j.params.scan_job_id === scanId);
+  // filtered by the server: every reconstruction of the scan, not those among the newest jobs only
+  const q = new URLSearchParams({kind: "recon", scan_job_id: scanId, limit: "1000"});
+  const jobs = asList(await apiJson("/api/jobs?" + q.toString()), "jobs");
   const ul = $("scan-recons");
   ul.textContent = "";
   if (!jobs.length) { const li = document.createElement("li"); li.textContent = "none yet"; ul.appendChild(li); }
@@ -2009,8 +2027,13 @@ async function init() {
   $("scan-resume").addEventListener("click", () => scanControl("resume"));
   $("scan-abort").addEventListener("click", () => scanControl("abort"));
   $("jobs-filter").addEventListener("submit", (ev) => { ev.preventDefault(); refreshJobs().catch(showError); });
-  $("jobs-state").addEventListener("change", () => refreshJobs().catch(showError));
-  $("jobs-kind").addEventListener("change", () => refreshJobs().catch(showError));
+  $("jobs-state").addEventListener("change", () => { jobsBefore = null; refreshJobs().catch(showError); });
+  $("jobs-kind").addEventListener("change", () => { jobsBefore = null; refreshJobs().catch(showError); });
+  $("jobs-older").addEventListener("click", () => {
+    jobsBefore = $("jobs-older").dataset.before || null;
+    refreshJobs().catch(showError);
+  });
+  $("jobs-newest").addEventListener("click", () => { jobsBefore = null; refreshJobs().catch(showError); });
   $("result-slice").addEventListener("input", showSlice);
   $("recon-form").addEventListener("submit", startRecon);
   $("recon-method").addEventListener("change", renderReconOptions);

@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator, Iterator
+from urllib.parse import urlencode
 
 import anyio
 from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Response
@@ -183,12 +184,27 @@ def get_job_or_404(context: Context, job_id: str, kind: str | None = None) -> di
     return job
 
 
-@router.get("", response_model=list[Job], dependencies=[Depends(read_access)])
-def list_jobs(context: Context = Depends(ctx), state: JobState | None = Query(None), kind: JobKind | None = Query(None),
-              limit: int = Query(200, ge=1, le=1000)) -> list[Job]:
+@router.get("", response_model=list[Job], dependencies=[Depends(read_access)],
+            responses={404: {"description": "``before`` names no job (deleted since the page that ended at it)"}})
+def list_jobs(response: Response, context: Context = Depends(ctx), state: JobState | None = Query(None),
+              kind: JobKind | None = Query(None), limit: int = Query(200, ge=1, le=1000),
+              before: str | None = Query(None, pattern=ID_PATTERN, description="a job's id: only the jobs submitted "
+                                         "before it (the next page of a listing that ended at it)"),
+              scan_job_id: str | None = Query(None, pattern=ID_PATTERN,
+                                              description="only the reconstructions of this scan job")) -> list[Job]:
     """Jobs, newest first (in the order they were submitted, whatever the wall clock did),
-    optionally filtered by state and kind."""
-    return [job_view(j) for j in context.store.list(state=state, kind=kind, limit=limit)]
+    optionally filtered by state, kind and the scan a reconstruction reads, at most ``limit``.
+    A page that is not the last says where the next begins: a ``Link`` header (RFC 8288) with
+    ``rel="next"``, the same query with ``before`` = its last job's id."""
+    if before is not None and context.store.get(before) is None:
+        raise HTTPException(404, f"no job {before} to list the jobs before (deleted since?): list from the newest")
+    jobs = context.store.list(state=state, kind=kind, limit=limit + 1, before=before, scan_job_id=scan_job_id)
+    if len(jobs) > limit:
+        jobs = jobs[:limit]
+        query = {k: v for k, v in (("state", state), ("kind", kind), ("scan_job_id", scan_job_id)) if v}
+        response.headers["Link"] = (f'</api/jobs?{urlencode({**query, "limit": limit, "before": jobs[-1]["id"]})}>; '
+                                    'rel="next"')
+    return [job_view(j) for j in jobs]
 
 
 @router.get("/{job_id}", response_model=Job, dependencies=[Depends(read_access)])

@@ -439,3 +439,41 @@ def test_client_models_mirror_the_servers_schema(server):
     for name, model in MODELS.items():
         assert name in schemas, f"the server has no {name} schema"
         assert set(model.model_fields) == set(schemas[name]["properties"]), name
+
+
+def test_jobs_list_a_page_at_a_time(api, server, tmp_path, capsys):
+    """``GET /api/jobs`` pages: ``limit`` jobs, a ``Link: rel="next"`` header where more follow, and
+    ``before=<the page's last id>`` the next page, until every job is listed once, in order (the
+    listing stopped at its limit, 200, with no way on); the client and ``fpscan jobs list`` follow it."""
+    from fpscan.clients.cli import main
+
+    data, dx, dt = _grid_data()
+    np.save(tmp_path / "p.npy", data[:, :8, :8])
+    dataset_id = api.upload_dataset(tmp_path / "p.npy", "npy", dt=dt, dx=dx)
+    for n_z in (16, 17, 18, 19, 20):  # five jobs (different options: not one idempotent job)
+        api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"n_z": n_z})
+    every = [j.id for j in api.list_jobs(limit=1000)]
+    assert len(every) >= 5
+    paged, before = [], None
+    while True:
+        page = api.list_jobs(limit=2, before=before)
+        paged += [j.id for j in page]
+        if len(page) < 2:
+            break
+        before = page[-1].id
+    assert paged == every
+    raw = httpx.get(f"{server}/api/jobs", params={"limit": 2}, headers={"Authorization": f"Bearer {TOKEN}"},
+                    timeout=HANG_S)
+    assert raw.headers["link"] == f'</api/jobs?limit=2&before={every[1]}>; rel="next"', raw.headers
+    last = httpx.get(f"{server}/api/jobs", params={"limit": 1000}, headers={"Authorization": f"Bearer {TOKEN}"},
+                     timeout=HANG_S)
+    assert "link" not in last.headers
+    with pytest.raises(NotFound, match="no job nonexistent-job to list the jobs before"):
+        api.list_jobs(before="nonexistent-job")
+    base = ["jobs", "list", "--server", server, "--token", TOKEN, "--ids"]
+    assert main(base + ["--limit", "2"]) == 0
+    out = capsys.readouterr()
+    assert out.out.split() == every[:2] and "the 2 newest shown; more with --all or --limit" in out.err
+    assert main(base + ["--limit", "2", "--all"]) == 0
+    out = capsys.readouterr()
+    assert out.out.split() == every and not out.err

@@ -111,6 +111,21 @@ def test_restart_recovery_in_the_store(tmp_path):
     raw.close()
 
 
+def test_the_store_lists_a_page_before_a_job_and_a_scans_reconstructions(tmp_path):
+    store = JobStore(tmp_path / "jobs.sqlite")
+    scan, _ = store.create_job("scan", {"plan_id": "p"})
+    other, _ = store.create_job("scan", {"plan_id": "q"})
+    mine = [store.create_job("recon", {"scan_job_id": scan["id"], "x": k})[0]["id"] for k in range(3)]
+    theirs = store.create_job("recon", {"scan_job_id": other["id"]})[0]["id"]
+    newest = [j["id"] for j in store.list()]
+    assert newest == [theirs, *mine[::-1], other["id"], scan["id"]]
+    assert [j["id"] for j in store.list(limit=2, before=newest[1])] == newest[2:4]
+    assert store.list(before="no-such-job") == []
+    assert [j["id"] for j in store.list(kind="recon", scan_job_id=scan["id"])] == mine[::-1]
+    assert [j["id"] for j in store.list(scan_job_id=other["id"], before=theirs)] == []
+    store.close()
+
+
 def _npy(a) -> bytes:
     buf = io.BytesIO()
     np.save(buf, a)

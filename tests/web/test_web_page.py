@@ -435,6 +435,29 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     wait_for(lambda: row.find_element("css selector", ".c-what").text == f"nedner of scan {scan_id[:8]} ({words})",
              "the reconstruction's label")
 
+    # the table pages (a page of one job here): "Older jobs" shows the next page, "Newest jobs" the first
+    def rows():
+        return [tr.get_attribute("data-job-id") for tr in browser.find_elements("css selector", "#jobs-body tr")]
+
+    newest = [j["id"] for j in api.get("/api/jobs", params={"limit": 2}).json()]
+    browser.execute_script("document.getElementById('jobs-table').dataset.page = '1';")
+    el(browser, "jobs-refresh").click()
+    wait_for(lambda: rows() == newest[:1] and el(browser, "jobs-older").is_displayed(), "a page of one job")
+    assert not el(browser, "jobs-newest").is_displayed()
+    el(browser, "jobs-older").click()
+    wait_for(lambda: rows() == newest[1:2] and el(browser, "jobs-newest").is_displayed(), "the next page")
+    el(browser, "jobs-newest").click()
+    wait_for(lambda: rows() == newest[:1], "the newest page again")
+    browser.execute_script("document.getElementById('jobs-table').dataset.page = '200';")
+    el(browser, "jobs-refresh").click()
+
+    # the scan's view lists its reconstructions, filtered by the server (GET /api/jobs?scan_job_id=)
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{scan_id}"]'), "the scan in the job list")
+    row.find_element("css selector", "a.c-open").click()
+    wait_for(lambda: any(a.get_attribute("href").endswith("#/jobs/" + recon_id)
+                         for a in browser.find_elements("css selector", "#scan-recons a")),
+             "the reconstruction among the scan's")
+
 
 def test_result_view_offers_the_model_based_method_and_its_parameters(browser, server, api, screenshots, state):
     """Choosing ``tv`` shows its λ and iteration fields (hidden for the other methods)

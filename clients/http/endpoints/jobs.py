@@ -47,8 +47,10 @@ class Jobs:
     """
 
     @endpoint
-    def list_jobs(*, state: str | None = None, kind: str | None = None) -> Call[list[Job]]:
-        """``GET /api/jobs?state=&kind=``: the jobs, newest first.
+    def list_jobs(*, state: str | None = None, kind: str | None = None, scan_job_id: str | None = None,
+                  limit: int | None = None, before: str | None = None) -> Call[list[Job]]:
+        """``GET /api/jobs?state=&kind=&scan_job_id=&limit=&before=``: the jobs, newest first, a
+        page at a time.
 
         Parameters
         ----------
@@ -57,6 +59,14 @@ class Jobs:
             ``failed``, ``cancelled``).
         kind : str, optional
             Only jobs of this kind.
+        scan_job_id : str, optional
+            Only the reconstructions of this scan job (its full id).
+        limit : int, optional
+            At most this many (1-1000; the server's default: 200).
+        before : str, optional
+            A job's id: only the jobs submitted before it. A page of ``limit`` jobs may not be
+            the last: the next is ``list_jobs(..., before=<its last job's id>)``, until a page
+            holds fewer than ``limit``.
 
         Returns
         -------
@@ -69,7 +79,8 @@ class Jobs:
         ServerUnavailable
             The server cannot be reached.
         """
-        params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
+        params = {k: v for k, v in (("state", state), ("kind", kind), ("scan_job_id", scan_job_id),
+                                    ("limit", limit), ("before", before)) if v}
         return Call(Request("GET", "/api/jobs", params=params or None), read_models(Job))
 
     @endpoint

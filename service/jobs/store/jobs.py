@@ -160,9 +160,13 @@ class JobRecords(EventLog):
         fast path. The caller must not modify the returned dict."""
         return self._cache.get(job_id)
 
-    def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> Jobs:
+    def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000,
+             before: str | None = None, scan_job_id: str | None = None) -> Jobs:
         """The jobs (of ``state`` and ``kind`` when given), newest first: in the store's
-        sequence, the last submitted first (module docstring), at most ``limit``."""
+        sequence, the last submitted first (module docstring), at most ``limit``; ``before``
+        (a job's id): only those submitted before it (the next page of a listing that ended
+        at it); ``scan_job_id``: only the reconstructions of that scan job. A ``before`` that
+        names no job gives none."""
         sql = "SELECT * FROM jobs WHERE 1=1"
         args: list[Any] = []
         if state is not None:
@@ -171,6 +175,12 @@ class JobRecords(EventLog):
         if kind is not None:
             sql += " AND kind = ?"
             args.append(kind)
+        if before is not None:
+            sql += " AND seq < (SELECT seq FROM jobs WHERE id = ?)"
+            args.append(before)
+        if scan_job_id is not None:
+            sql += " AND json_extract(params, '$.scan_job_id') = ?"
+            args.append(scan_job_id)
         sql += " ORDER BY seq DESC LIMIT ?"
         args.append(int(limit))
         with self._lock:
