@@ -314,9 +314,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
     t = plan.expected_scan_time_s
     print(f"order: {plan.order}; expected scan time: "
-          + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))
+          + (_seconds(t) if t is not None else "set by the scanner (no PRF in the plan)"))
     print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
     return 0
+
+
+def _seconds(t: float) -> str:
+    """A scan time for the terminal: 3 significant digits below 100 s (a 16-point plan at 500 Hz
+    is 0.032 s, not 0.0 s), whole seconds above."""
+    return f"{t:.3g} s" if t < 100 else f"{t:.0f} s"
 
 
 def _remote(args: argparse.Namespace, body: dict) -> int:
@@ -338,7 +344,7 @@ def _remote(args: argparse.Namespace, body: dict) -> int:
         print(f"note: {field_of(plan, 'shortfall')}")
     print(f"weight ratio (outer/inner): {field_of(plan, 'weight_ratio'):.4g}")
     t = field_of(plan, "expected_scan_time_s")
-    print("expected scan time: " + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))
+    print("expected scan time: " + (_seconds(t) if t is not None else "set by the scanner (no PRF in the plan)"))
     if args.out:
         print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
     return 0

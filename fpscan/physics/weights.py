@@ -124,7 +124,8 @@ def voronoi_weights(positions: npt.ArrayLike, pitch: float | None = None, *, bou
     cell is additionally limited to the disc of radius ``3·max(d_i, d_med)`` around it
     (``d_i``: its own nearest-neighbour distance), so sparse masks (a disc of sensors on a
     square lattice) do not claim area far from any sensor, while a uniform random mask still
-    covers > 99.9 % of its box. The weights sum to the covered area. Exactness:
+    covers more than 99.5 % of its box (99.6-99.9 % measured: 3-25 % of a 40² or 64² lattice). The
+    weights sum to the covered area. Exactness:
 
     - every point of a full regular lattice gets exactly pitch² (pitch on a line);
     - an equispaced sub-grid of interval s gets exactly (s·pitch)² each;

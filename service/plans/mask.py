@@ -20,7 +20,8 @@ SHORTFALL_FRACTION = 0.9
 
 
 def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | None = None) -> str | None:
-    """One line saying why a mask holds fewer points than asked.
+    """One line saying why a mask holds fewer points than asked (or, for the angular kinds'
+    ring designs, many more).
 
     Parameters
     ----------
@@ -36,8 +37,8 @@ def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | No
     Returns
     -------
     str or None
-        The reason when ``obtained`` is below ``SHORTFALL_FRACTION`` (0.9) of ``requested``,
-        else None.
+        The reason when ``obtained`` is below ``SHORTFALL_FRACTION`` (0.9) of ``requested``, or
+        for ``equisteradian``/``equiangular`` above ``requested / SHORTFALL_FRACTION``; else None.
 
     Examples
     --------
@@ -47,7 +48,13 @@ def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | No
     ask a smaller min_distance
     >>> shortfall("random", 100, 95) is None  # within 10 %
     True
+    >>> print(shortfall("equisteradian", 53, 85))
+    85 points for the 53 asked: the design's rings hold more points outward, and its last ring is taken
+    whole; ask fewer points for fewer
     """
+    if requested and kind in ("equisteradian", "equiangular") and obtained * SHORTFALL_FRACTION > requested:
+        return (f"{obtained} points for the {requested} asked: the design's rings hold more points outward, and its "
+                "last ring is taken whole; ask fewer points for fewer")
     if not requested or obtained >= SHORTFALL_FRACTION * requested:
         return None
     at = f" ({pitch:g} m)" if pitch else ""

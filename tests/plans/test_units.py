@@ -91,6 +91,10 @@ def test_a_depth_below_one_pitch_is_refused_and_a_shortfall_is_explained():
     plan = make_plan(kind="equisteradian", lattice=lattice, params={"depth": "3.6mm", "n_points": 200})
     assert plan.mask.params["depth"] == 3.6e-3 and abs(plan.mask.obtained_points - 200) <= 0.1 * 200
     assert make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=3.6e-3, n_points=200).shortfall is None
+    # a ring design whose last ring, taken whole, gives many more points than asked says so too
+    over = make_mask("equisteradian", Lattice(64, 64, 1e-4), depth=5e-3, n_points=14)
+    assert over.obtained_points * 0.9 > 14, over.obtained_points
+    assert over.shortfall.startswith(f"{over.obtained_points} points for the 14 asked: "), over.shortfall
     line = make_plan(kind="equiangular", lattice={"n_x": 256, "n_y": 1, "pitch": "60um"},
                      params={"depth": "2 mm", "n_points": 32, "poi": "-1mm"})
     assert line.mask.params["poi"][0] == -1e-3 and line.mask.obtained_points >= 29

@@ -103,7 +103,11 @@ def test_api_plan_lengths_take_units_and_a_depth_below_a_pitch_is_refused(shared
                                                 "params": {"depth": "60um", "n_points": 1000}})
     assert short.status_code == 201 and short.json()["n_points"] < 900, short.text
     assert short.json()["shortfall"].startswith(f"{short.json()['n_points']} of 1000 points asked: "), short.json()
-    assert text.json()["shortfall"] is None
+    got = text.json()["n_points"]  # the ring design's last ring is taken whole: a note says so when that is many more
+    if got * 0.9 > 60:
+        assert text.json()["shortfall"].startswith(f"{got} points for the 60 asked: "), text.json()
+    else:
+        assert text.json()["shortfall"] is None
     r = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
                                             "params": {"depth": "3 furlongs", "n_points": 60}})
     assert r.status_code == 422 and "depth" in r.json()["detail"], r.text
