@@ -507,9 +507,8 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
         A name not in ``choices``; a file no format fits, that is refused, or of a detected
         format not in ``choices``; a format without a reader; a wavelength index out of
         range; what the format's ``load`` raises (a ``KeyError``, ``IndexError``, ``TypeError``,
-        ``AttributeError`` or ``ArithmeticError`` of its reader
-        too, as a ``ValueError`` naming the format: `UNREADABLE`); a bounded read that did not end
-        in time.
+        ``AttributeError`` or ``ArithmeticError`` of its reader too, as a ``ValueError`` naming
+        the format: `UNREADABLE`); a bounded read that did not end in time.
     FileNotFoundError
         No file ``path``.
     """
