@@ -124,7 +124,9 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="FPSCAN_", extra="forbid")
 
-    data_dir: Path = Field(Path("fpscan-data"), description="folder for the database, plans, scans, results")
+    data_dir: Path = Field(Path("fpscan-data"), description="folder for the database, plans, scans, results (a "
+                           "relative path is taken from the folder the server starts in, and kept absolute: the "
+                           "jobs' records name their files by it)")
     db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite); one "
                                  "server per database: the server locks <db_path>.lock beside it")
     devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
@@ -262,6 +264,13 @@ class Settings(BaseSettings):
             if not key or len(key) > 64 or not all(ch.isalnum() or ch in "_-" for ch in key):
                 raise ValueError(f"scanner id {key!r} must be 1-64 characters of [A-Za-z0-9_-]")
         return value
+
+    @field_validator("data_dir", "db_path")
+    @classmethod
+    def _absolute(cls, value: Path | None) -> Path | None:
+        # the jobs' records hold their datasets' and results' paths: a relative data folder would
+        # make them relative to the folder the server started in, which a restart elsewhere changes
+        return None if value is None else Path(value).expanduser().absolute()
 
     @field_validator("log_level")
     @classmethod

@@ -222,7 +222,7 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
     recovered = store.recover(context.queue.owner, settings.max_attempts)
     from fpscan.service.jobs.queue import remove_debris
 
-    debris = remove_debris(settings.data_dir, PROCESS_START)
+    debris = remove_debris(settings.data_dir, PROCESS_START, known_datasets={d["id"] for d in store.list_datasets()})
     if debris:
         log.info("startup removed crash debris: %s", ", ".join(debris[:20]))
     if settings.resume_scans:

@@ -50,6 +50,12 @@ IdemKey = Header(None, alias="Idempotency-Key", min_length=1, max_length=200,
                  description="same key → same job (1-200 characters; an empty key is refused)")
 
 
+#: the keys of a reconstruction job's params that the client's request decides, which an
+#: Idempotency-Key's repeat must match: not the paths, estimates and shapes the server works out
+#: (a restart with its data folder spelled otherwise, or another time limit, changes those)
+REQUEST_KEYS = ("method", "params", "input_id", "scan_job_id", "dataset_id", "wavelength", "unmix")
+
+
 def _full_scan_job_id(context: Context, body: ReconRequestBase) -> ReconRequestBase:
     """``body`` with a short ``scan_job_id`` (a unique prefix) replaced by the full id;
     409 when the prefix is ambiguous."""
@@ -337,7 +343,8 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
                   "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
     try:  # its inputs looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, _created = lifecycle.create_job(context.store, "recon", job_params, idempotency_key=idempotency_key,
-                                             memory_bytes=mem, max_queued=context.settings.queued_per_client)
+                                             memory_bytes=mem, max_queued=context.settings.queued_per_client,
+                                             request_keys=REQUEST_KEYS)
     except QueueFull as exc:
         wait, first = queue_wait(context, exc.client)
         raise HTTPException(

@@ -43,7 +43,7 @@ import stat
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -79,7 +79,7 @@ class _Future(Protocol):
 INCOMING = "incoming"
 
 
-def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
+def remove_debris(data_dir: str | Path, older_than: float, known_datasets: Collection[str] | None = None) -> list[str]:
     """Remove what a crash leaves behind and nothing else can.
 
     That is: fpscan's temporary files and folders at any depth of ``results/`` and
@@ -89,8 +89,11 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     folder or inside another temporary folder), progress and cancel files
     (``results/.*.progress*``, ``results/.*.cancel``) and partial uploads (``incoming/<id>/``,
     where an upload is staged until it is stored, and ``datasets/<id>/`` still holding
-    ``upload.bin``, as earlier versions staged them). Symbolic links are not followed. A path
-    that is gone meanwhile or cannot be removed is skipped (no error).
+    ``upload.bin``, as earlier versions staged them), and, given ``known_datasets``, a
+    ``datasets/<id>/`` folder whose id the job store does not hold (the server stopped between
+    the upload's move into place and its record's commit: an upload never acknowledged).
+    Symbolic links are not followed. A path that is gone meanwhile or cannot be removed is
+    skipped (no error).
 
     Parameters
     ----------
@@ -98,6 +101,9 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
         The service's data folder.
     older_than : float
         UNIX time (s): only what was last modified before it goes (the start of this process).
+    known_datasets : collection of str, optional
+        The ids of the datasets the job store holds (None: dataset folders are judged by
+        ``upload.bin`` alone).
 
     Returns
     -------
@@ -120,7 +126,9 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
                 candidates += [Path(folder) / name for name in temps + files if is_temp_name(name)]
     datasets = data_dir / "datasets"
     if datasets.is_dir():
-        candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()]
+        candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()
+                       or (known_datasets is not None and p.is_dir() and not p.is_symlink()
+                           and p.name not in known_datasets)]
     incoming = data_dir / INCOMING
     if incoming.is_dir():
         candidates += list(incoming.iterdir())

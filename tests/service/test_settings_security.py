@@ -7,6 +7,7 @@ import json
 import sqlite3
 import threading
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -124,6 +125,27 @@ def test_the_store_lists_a_page_before_a_job_and_a_scans_reconstructions(tmp_pat
     assert [j["id"] for j in store.list(kind="recon", scan_job_id=scan["id"])] == mine[::-1]
     assert [j["id"] for j in store.list(scan_job_id=other["id"], before=theirs)] == []
     store.close()
+
+
+def test_an_idempotent_repeat_compares_the_request_not_what_the_server_worked_out(tmp_path):
+    """The same Idempotency-Key and request after a restart whose settings spell the data folder
+    otherwise, or change an estimate, is the same job (it was a 409); another request is still a 409."""
+    from fpscan.service.jobs.store import IdempotencyConflict
+
+    store = JobStore(tmp_path / "jobs.sqlite")
+    asked = {"method": "ner", "params": {"n_z": 16}, "dataset_id": "d1", "input_id": "dataset:d1"}
+    keys = ("method", "params", "dataset_id", "input_id")
+    first, created = store.create_job("recon", {**asked, "input": {"path": "data/datasets/d1/dataset.h5"},
+                                                "work_estimate_s": 1.5}, idempotency_key="k", request_keys=keys)
+    again, created_again = store.create_job("recon", {**asked, "input": {"path": "/srv/data/datasets/d1/dataset.h5"},
+                                                      "work_estimate_s": 0.7}, idempotency_key="k", request_keys=keys)
+    assert created and not created_again and again["id"] == first["id"]
+    with pytest.raises(IdempotencyConflict):
+        store.create_job("recon", {**asked, "params": {"n_z": 32}}, idempotency_key="k", request_keys=keys)
+    store.close()
+    # the data folder is kept absolute: the jobs' records name their files by it
+    assert Settings(data_dir="fpscan-data").data_dir == Path.cwd() / "fpscan-data"
+    assert Settings(data_dir="~/d").data_dir == Path.home() / "d"
 
 
 def _npy(a) -> bytes:

@@ -156,3 +156,11 @@ def test_start_up_removes_only_the_crash_debris_older_than_the_process(tmp_path)
     assert list((data / "incoming").iterdir()) == []
     assert sorted(p.name for p in results.iterdir()) == ["job2.1", "job3.1.tmp-9-9"]
     assert sorted(p.name for p in datasets.iterdir()) == ["done"]
+    # a dataset moved into place whose record never committed (the server stopped between the two:
+    # an upload never acknowledged) goes too, given the ids the store holds; a stored one stays
+    (datasets / "unrecorded").mkdir()
+    (datasets / "unrecorded" / "dataset.h5").write_bytes(b"u")
+    os.utime(datasets / "unrecorded", (old, old))
+    os.utime(datasets / "done", (old, old))
+    assert remove_debris(data, time.time() - 60, known_datasets={"done"}) == ["unrecorded"]
+    assert sorted(p.name for p in datasets.iterdir()) == ["done"]

@@ -19,6 +19,7 @@ import copy
 import json
 import sqlite3
 import uuid
+from collections.abc import Iterable
 from typing import Any, overload
 
 from fpscan.service.jobs.store.events import EventLog
@@ -91,13 +92,15 @@ class JobRecords(EventLog):
         return job
     def create_job(self, kind: str, params: dict, *, idempotency_key: str | None = None,
                    memory_bytes: int = 0, progress: dict | None = None,
-                   max_queued: int | None = None) -> tuple[dict, bool]:
+                   max_queued: int | None = None, request_keys: Iterable[str] | None = None) -> tuple[dict, bool]:
         """Insert a queued job; returns ``(job, created)``. With an ``idempotency_key``
-        already used by a job of the same kind and parameters, returns that job and
-        ``created=False``; with different ones raises :class:`IdempotencyConflict`. With
-        ``max_queued`` and ``params["client"]``, raises :class:`QueueFull` while that client
-        has ``max_queued`` jobs of ``kind`` queued (a repeated idempotent request is answered
-        all the same)."""
+        already used by a job of the same kind and request, returns that job and
+        ``created=False``; with a different request raises :class:`IdempotencyConflict`. The
+        request is ``params`` but ``client``, or only its ``request_keys`` where given (what the
+        client asked, not what the server worked out from it: a path, an estimate, which a
+        restart with other settings may spell differently). With ``max_queued`` and
+        ``params["client"]``, raises :class:`QueueFull` while that client has ``max_queued``
+        jobs of ``kind`` queued (a repeated idempotent request is answered all the same)."""
         if kind not in KINDS:
             raise ValueError(f"unknown job kind {kind!r}")
         job_id = uuid.uuid4().hex
@@ -110,7 +113,8 @@ class JobRecords(EventLog):
                 if row is not None:
                     old = self._row(row)
                     # the same request from another address of the client is the same request
-                    asked = {k: v for k, v in json.loads(json.dumps(params)).items() if k != "client"}
+                    keys = set(params) - {"client"} if request_keys is None else set(request_keys)
+                    asked = {k: v for k, v in json.loads(json.dumps(params)).items() if k in keys}
                     before = old["params"]
                     if old["kind"] != kind or {k: before.get(k) for k in asked} != asked:
                         raise IdempotencyConflict(
