@@ -318,7 +318,11 @@ class Settings(BaseSettings):
         """``text`` with the data directory's path replaced by ``<data>``, so error
         messages that reach clients never show the server's file system layout. Only whole
         path prefixes are replaced (``--data-dir data`` leaves the word "dataset" alone)."""
-        for root in sorted({str(Path(self.data_dir).resolve()), str(self.data_dir)}, key=len, reverse=True):
+        # the folder as resolved, as kept (absolute) and relative to the working folder, the spelling
+        # a relative --data-dir gave it
+        rel = os.path.relpath(self.data_dir)
+        roots = {str(Path(self.data_dir).resolve()), str(self.data_dir)} | ({rel} if not rel.startswith("..") else set())
+        for root in sorted(roots, key=len, reverse=True):
             if root and root != ".":
                 # only a whole path prefix: not inside a word or another path ("dataset",
                 # "/x/data" for data_dir "data"), and followed by "/" or the path's end
