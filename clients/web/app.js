@@ -1313,7 +1313,7 @@ async function refreshJobs() {
   if ($("jobs-state").value) params.set("state", $("jobs-state").value);
   if ($("jobs-kind").value) params.set("kind", $("jobs-kind").value);
   const pageSize = jobsPage();
-  params.set("limit", String(pageSize));
+  params.set("limit", String(pageSize + 1));  // one more than shown: whether an older page exists
   if (jobsBefore) params.set("before", jobsBefore);
   let jobs;
   try {
@@ -1323,7 +1323,8 @@ async function refreshJobs() {
     jobsBefore = null;  // the page began at a job deleted since: back to the newest
     return refreshJobs();
   }
-  const older = jobs.length === pageSize ? String(jobs[jobs.length - 1].id) : null;
+  const older = jobs.length > pageSize ? String(jobs[pageSize - 1].id) : null;
+  jobs = jobs.slice(0, pageSize);
   $("jobs-older").hidden = !older;
   $("jobs-older").dataset.before = older || "";
   $("jobs-newest").hidden = !jobsBefore;
