@@ -158,7 +158,7 @@ class Process:
                 break
         name = " ".join(map(str, self.argv[2:4]))
         try:  # its output ended: it is exiting (a refused option), and says why on stderr
-            status = self.proc.wait(timeout=5.0) if time.monotonic() < deadline else self.proc.poll()
+            status = self.proc.wait(timeout=max(0.0, deadline - time.monotonic()))  # within the caller's bound
         except subprocess.TimeoutExpired:
             status = None
         if status is not None:

@@ -113,6 +113,8 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
         assert seen[-1].points_done == done_paused and seen[-1].state == "paused"
         # a pause is not acquiring time: while paused the rate holds (it fell with every report) and
         # no end is predicted (the ETA grew)
+        while sum(p.state == "paused" for p in seen) < 3 and time.monotonic() < deadline:  # reports, not a clock
+            time.sleep(0.02)
         paused = [p for p in seen if p.state == "paused"]
         assert len(paused) >= 2 and all(math.isinf(p.eta_s) for p in paused), paused
         assert max(p.rate for p in paused) == pytest.approx(min(p.rate for p in paused), rel=1e-9), paused

@@ -173,18 +173,12 @@ class JobRecords(EventLog):
         names no job gives none."""
         sql = "SELECT * FROM jobs WHERE 1=1"
         args: list[Any] = []
-        if state is not None:
-            sql += " AND state = ?"
-            args.append(state)
-        if kind is not None:
-            sql += " AND kind = ?"
-            args.append(kind)
-        if before is not None:
-            sql += " AND seq < (SELECT seq FROM jobs WHERE id = ?)"
-            args.append(before)
-        if scan_job_id is not None:
-            sql += " AND json_extract(params, '$.scan_job_id') = ?"
-            args.append(scan_job_id)
+        for clause, value in (("state = ?", state), ("kind = ?", kind),
+                              ("seq < (SELECT seq FROM jobs WHERE id = ?)", before),
+                              ("json_extract(params, '$.scan_job_id') = ?", scan_job_id)):
+            if value is not None:
+                sql += f" AND {clause}"
+                args.append(value)
         sql += " ORDER BY seq DESC LIMIT ?"
         args.append(int(limit))
         with self._lock:
