@@ -981,6 +981,35 @@ class ScanData:
             attrs=dict(self.attrs, subset_of_n_points=self.n_points))
 
 
+def _check_layout(f: h5py.File, path: Path, attrs: dict, wavelengths: np.ndarray, *, version_1: bool) -> None:
+    """Refuse a scan file whose datasets disagree with its own ``n_points``, ``n_t`` and
+    wavelengths (the module docstring's layout), before any of them is read: an A-line record
+    shorter or longer than ``n_t``, or one array with fewer points than the others, would
+    otherwise read as a different scan or fail deep inside the reader. Raises ValueError
+    naming the dataset, the shape it has and the shape the attributes ask."""
+    stated = attrs.get("n_points"), attrs.get("n_t")
+    if not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and int(v) >= 1 for v in stated):
+        raise ValueError(f"{path}: n_points ({stated[0]!r}) and n_t ({stated[1]!r}) must be positive integers")
+    n, n_t = (int(v) for v in stated if v is not None)
+    n_w = 1 if version_1 else wavelengths.size
+    lead = () if version_1 else (n_w,)
+    want = {"alines": (*lead, n, n_t), "aline_meta": (*lead, n), "completed": (*lead, n),
+            "weights": (n,)}
+    for name in (*want, "positions", "indices", "plan_json"):
+        if not isinstance(f.get(name), h5py.Dataset):
+            raise ValueError(f"{path} has no dataset /{name}: not a complete scan file")
+    for name, shape in want.items():
+        if f[name].shape != shape:
+            raise ValueError(f"{path}: /{name} has shape {f[name].shape}, but the file's n_points = {n}, "
+                             f"n_t = {n_t} and {n_w} wavelength(s) ask {shape}")
+    if f["positions"].ndim != 2 or f["positions"].shape[0] != n or f["positions"].shape[1] not in (1, 2):
+        raise ValueError(f"{path}: /positions has shape {f['positions'].shape}, not ({n}, 1 or 2)")
+    if f["indices"].shape != (n, 2):
+        raise ValueError(f"{path}: /indices has shape {f['indices'].shape}, not ({n}, 2)")
+    if not version_1 and attrs.get("n_wavelengths", n_w) != n_w:
+        raise ValueError(f"{path}: n_wavelengths = {attrs['n_wavelengths']!r}, but wavelengths_m holds {n_w}")
+
+
 def _read_v1(f: h5py.File, wavelengths: np.ndarray) -> tuple:
     """An ``fpscan-scan/1`` file's record, samples and metadata in the version-2 shapes."""
     done = f["completed"][()].astype(bool)[None]
@@ -1259,6 +1288,7 @@ def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.flo
         raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
     attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
     wavelengths = np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1)
+    _check_layout(f, path, attrs, wavelengths, version_1=fmt == FORMAT_1)
     if fmt == FORMAT_1:
         done, meta_arr, alines = _read_v1(f, wavelengths)
     else:

@@ -406,3 +406,45 @@ def test_bad_input(tmp_path):
         read_scan(tmp_path / "missing.h5")
     with pytest.raises(ValueError, match="float"):
         read_scan(path, dtype=np.int32)
+
+
+def _replaced(name: str, cut):
+    def edit(f: h5py.File) -> None:
+        data = cut(f[name][()])
+        del f[name]
+        f[name] = data
+    return edit
+
+
+@pytest.mark.parametrize("edit, what", [
+    (_replaced("alines", lambda a: a[..., :8]), "/alines has shape (1, 10, 8)"),
+    (_replaced("alines", lambda a: np.concatenate([a, a], axis=-1)), "/alines has shape (1, 10, 32)"),
+    (_replaced("alines", lambda a: a[0]), "/alines has shape (10, 16)"),
+    (_replaced("completed", lambda a: a[:, :5]), "/completed has shape (1, 5)"),
+    (_replaced("aline_meta", lambda a: a[:, :5]), "/aline_meta has shape (1, 5)"),
+    (_replaced("positions", lambda a: a[:5]), "/positions has shape (5, 2)"),
+    (_replaced("indices", lambda a: a[:5]), "/indices has shape (5, 2)"),
+    (_replaced("weights", lambda a: a[:5]), "/weights has shape (5,)"),
+    (lambda f: f.attrs.__setitem__("n_t", 8), "n_t = 8"),
+    (lambda f: f.attrs.__setitem__("n_points", 5), "n_points = 5"),
+    (lambda f: f.attrs.__setitem__("n_points", -5), "positive integers"),
+    (lambda f: f.attrs.__setitem__("wavelengths_m", [7.5e-7, 8e-7]), "2 wavelength(s)"),
+    (lambda f: f.__delitem__("weights"), "no dataset /weights"),
+], ids=["alines-short", "alines-long", "alines-2d", "completed", "meta", "positions", "indices", "weights",
+        "n_t-attr", "n_points-attr", "n_points-negative", "wavelengths-attr", "no-weights"])
+def test_a_file_whose_arrays_disagree_with_its_attributes_is_refused(tmp_path, edit, what):
+    """A scan file is hostile input: one whose datasets do not have the shapes its own n_points,
+    n_t and wavelengths give (docs/file-formats.md) is refused with the shapes named, rather
+    than read as another record (A-lines shorter than n_t read as a shorter scan) or failing
+    deep inside the reader with an IndexError."""
+    plan = make_plan(10, 16)
+    path = tmp_path / "scan.h5"
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
+        for k in range(10):
+            sf.append(k, aline(k, 16), meta(k))
+    assert read_scan(path).alines.shape == (10, 16)  # as written, it reads
+    with h5py.File(path, "r+") as f:
+        edit(f)
+    with pytest.raises(ValueError) as exc:
+        read_scan(path)
+    assert what in str(exc.value), str(exc.value)

@@ -278,6 +278,9 @@ UPLOADS = [
            "implausible"),
     Upload("scan with a negative weight", "fpscan", scan_edited("w", _weights(-1e-8)), 422, "weights"),
     Upload("scan with a NaN weight", "fpscan", scan_edited("w-nan", _weights(math.nan)), 422, "weights"),
+    # A-lines of fewer samples than the file's n_t read as another, shorter record
+    Upload("scan whose A-lines are shorter than its n_t", "fpscan",
+           scan_edited("short", lambda f: f.attrs.__setitem__("n_t", f["alines"].shape[-1] + 16)), 422, "/alines"),
     # the structural checks do not depend on the format the upload claims
     Upload("external storage (ipasc)", "ipasc", external_storage, 422, "external storage"),
     Upload("external link (fpscan)", "fpscan", external_link, 422, "external link"),

@@ -98,7 +98,7 @@ CASES = [
     ("scan file: no dt_s", lambda d: _scan(d, "s1.h5", lambda f: f.attrs.__delitem__("dt_s")), {}, "dt_s"),
     ("scan file: a number as its plan", lambda d: _scan(d, "s2.h5", _replace("plan_json", 5)), {}, "scan file"),
     ("scan file: fewer positions than points", lambda d: _scan(d, "s3.h5", _replace("positions", np.zeros((29, 2)))),
-     {}, "scan file"),
+     {}, "/positions has shape (29, 2), not (30, 1 or 2)"),
     ("scan file: dt_s NaN", lambda d: _scan(d, "s4.h5", lambda f: f.attrs.__setitem__("dt_s", np.nan)), {},
      "dt must be finite"),
     ("scan file: indices outside the lattice", lambda d: _scan(d, "s5.h5", _replace("indices", np.full((30, 2), 1000,
