@@ -128,6 +128,8 @@ WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volum
                                                        "every wavelength); default: its volume")
 
 
+@router.head("/api/jobs/{job_id}/export/{format}", dependencies=[Depends(read_access)],
+             include_in_schema=False)  # its headers alone (the export is made, as for GET)
 @router.get("/api/jobs/{job_id}/export/{format}", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"description": "the job's file in that format (a folder export zipped)"},
                        206: {"description": "partial content (HTTP Range)"},

@@ -22,6 +22,7 @@ the answer is sent, as POSIX keeps an unlinked open file).
 from __future__ import annotations
 
 import errno
+import json
 import logging
 import math
 import os
@@ -199,6 +200,37 @@ class _Bounded:
         pass
 
 
+#: Starlette's own answers to a ``Range`` it cannot serve (plain text: "Malformed range header.",
+#: or an empty 416), and the reason the API's ``{"detail"}`` gives instead
+_RANGE_REFUSALS = {
+    400: "the Range header does not parse as RFC 9110 byte ranges (bytes=FIRST-LAST, bytes=FIRST-, "
+         "bytes=-SUFFIX, comma-separated)",
+    416: "the Range header asks for no byte inside the file (its size is in Content-Range: bytes */SIZE)",
+}
+
+
+def _range_refusals_as_json(send: Send, scope: Scope) -> Send:
+    """``send`` with Starlette's plain-text refusals of a ``Range`` header (the only 400 and 416 a
+    ``FileResponse`` makes) answered as every other refusal of the API is: ``{"detail": reason}``
+    in JSON, the 416's ``Content-Range: bytes */SIZE`` kept (RFC 9110 §15.5.17)."""
+    refused: list[int] = []
+
+    async def wrapped(message: Any) -> None:
+        if message["type"] == "http.response.start" and message["status"] in _RANGE_REFUSALS:
+            refused.append(message["status"])
+            body = json.dumps({"detail": _RANGE_REFUSALS[message["status"]]}).encode()
+            keep = [(k, v) for k, v in message.get("headers", []) if k.lower() == b"content-range"]
+            head_only = scope.get("method", "GET").upper() == "HEAD"
+            await send({"type": "http.response.start", "status": message["status"],
+                        "headers": [(b"content-type", b"application/json"),
+                                    (b"content-length", str(len(body)).encode()), *keep]})
+            await send({"type": "http.response.body", "body": b"" if head_only else body})
+        elif not refused:
+            await send(message)
+
+    return wrapped
+
+
 class HeldFileResponse(FileResponse):
     """A ``FileResponse`` (``Range`` included) of the server's own file at ``path`` as it is now.
 
@@ -238,7 +270,7 @@ class HeldFileResponse(FileResponse):
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         extensions = {k: v for k, v in (scope.get("extensions") or {}).items() if k != "http.response.pathsend"}
         try:  # never a send of the path: the bytes are those of the file held
-            await super().__call__({**scope, "extensions": extensions}, receive, send)
+            await super().__call__({**scope, "extensions": extensions}, receive, _range_refusals_as_json(send, scope))
         finally:
             self._held.close()
 

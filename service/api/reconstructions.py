@@ -509,6 +509,7 @@ def volume_dir(context: Context, job_id: str, wavelength: int | None) -> Path:
                              f"(it has: {', '.join(map(str, have)) if have else job['params'].get('wavelength') or 0})")
 
 
+@router.head("/{job_id}/volume.h5", dependencies=[Depends(read_access)], include_in_schema=False)  # its headers alone
 @router.get("/{job_id}/volume.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "p0 volume (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"},
@@ -525,6 +526,7 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
                             filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
 
+@router.head("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], include_in_schema=False)  # its headers alone
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}},
                              "description": "HbO2, Hb, THb, sO2 and mask volumes (HDF5, fpscan-unmix/1)"},

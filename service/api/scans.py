@@ -137,6 +137,7 @@ def scan_file_path(context: Context, job_id: str) -> Path:
     return Path(path)
 
 
+@router.head("/api/scans/{job_id}/file", dependencies=[Depends(read_access)], include_in_schema=False)  # its headers alone
 @router.get("/api/scans/{job_id}/file", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "the scan file (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"}})

@@ -70,6 +70,8 @@ def test_concurrent_first_exports_wait_for_one_build_and_serve_the_same_bytes(tm
             body = answers[0][1]
             part = api.get(f"/api/jobs/{jid}/export/ome-tiff", headers={"Range": f"bytes={len(body) // 2}-"})
             assert part.status_code == 206 and part.content == body[len(body) // 2:]
+            head = api.head(f"/api/jobs/{jid}/export/ome-tiff")  # the same file's headers, no body
+            assert head.status_code == 200 and int(head.headers["content-length"]) == len(body) and not head.content
             # the job's deletion takes its export with it
             assert api.delete(f"/api/jobs/{jid}").status_code == 200
         assert not list(data.glob(f"results/{jid}*")), list(data.glob(f"results/{jid}*"))

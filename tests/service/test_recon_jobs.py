@@ -122,6 +122,16 @@ def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared
     assert r.status_code == 206 and len(r.content) == 100
     full = api.get(f"/api/reconstructions/{job_id}/volume.h5").content
     assert r.content == full[:100]
+    # HEAD: GET's headers, no body (a download manager's or `curl -I`'s first question)
+    head = api.head(f"/api/reconstructions/{job_id}/volume.h5")
+    assert head.status_code == 200 and head.content == b"", (head.status_code, head.text)
+    assert int(head.headers["content-length"]) == len(full) and head.headers["accept-ranges"] == "bytes"
+    # a Range it cannot serve is refused as every other request is: a reason in {"detail"}
+    r = api.get(f"/api/reconstructions/{job_id}/volume.h5", headers={"Range": "bytes=oops"})
+    assert r.status_code == 400 and "Range" in r.json()["detail"], r.text
+    r = api.get(f"/api/reconstructions/{job_id}/volume.h5", headers={"Range": f"bytes={len(full) + 10}-"})
+    assert r.status_code == 416 and "no byte inside the file" in r.json()["detail"], r.text
+    assert r.headers["content-range"] == f"bytes */{len(full)}"
 
     # NEDNER on the same (full-lattice) sensors gives the NER image (paper §3.2)
     r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "nedner", "params": params})

@@ -80,6 +80,8 @@ def check_scan_file(c, job_id, sim, tmp_path, n_points):
 
     r = c.get(f"/api/scans/{job_id}/file")
     assert r.status_code == 200
+    head = c.head(f"/api/scans/{job_id}/file")  # the same file's headers, no body
+    assert head.status_code == 200 and int(head.headers["content-length"]) == len(r.content) and not head.content
     path = tmp_path / f"{job_id}.h5"
     path.write_bytes(r.content)
     scan = read_scan(path)
