@@ -139,8 +139,9 @@ def job_view(job: dict) -> Job:
         monotonic time, ``fpscan.service.jobs.store.clock``, never of wall times) and links
         (:func:`job_links`).
     """
-    # no file system path, nor the submitting client's address (it caps the client's queue)
-    params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client")}
+    # no file system path, nor the submitting client's address (it caps the client's queue), nor the
+    # request's digest (how a repeat with its Idempotency-Key is known)
+    params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client", "request_digest")}
     created, started, finished = job["created"], job["started"], job["finished"]
     # durations from the store's monotonic time (immune to the wall clock's steps); an attempt
     # cut off by an earlier release has its wall times alone, clamped at 0

@@ -2,6 +2,8 @@
 download its volume (HDF5, HTTP Range), MIPs and depth slices (PNG)."""
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, Response
@@ -301,7 +303,15 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     image deeper than the record can hear), or when it asks for ``device: "cuda"`` where the
     server has no GPU or the job's GPU path needs more than the GPU's memory; 507 when its result does not fit the free disk;
     429 (``Retry-After``) while the client's address has ``queued_per_client`` reconstructions
-    queued, saying the cap, the queue's length and its estimated wait."""
+    queued, saying the cap, the queue's length and its estimated wait. A repeat of a request
+    already answered, with its ``Idempotency-Key`` and the same body, is answered with its job
+    before anything else is looked up (an input deleted since, a full disk or queue)."""
+    asked = request_digest(body)
+    if idempotency_key is not None:
+        earlier = context.store.find_repeat(idempotency_key, "recon", {"request_digest": asked})
+        if earlier is not None:
+            response.headers["Location"] = f"/api/jobs/{earlier['id']}"
+            return job_view(earlier)
     body = _with_method(context, _full_scan_job_id(context, body))
     extra: dict = {}
     if body.unmix is not None and body.wavelength is not None:
@@ -339,7 +349,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
-                  "wavelength": body.wavelength, "mask": _mask_of(context, body), **extra,
+                  "wavelength": body.wavelength, "mask": _mask_of(context, body), **extra, "request_digest": asked,
                   "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
     try:  # its inputs looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, _created = lifecycle.create_job(context.store, "recon", job_params, idempotency_key=idempotency_key,
@@ -361,6 +371,12 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
         context.queue.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
     return job_view(job)
+
+
+def request_digest(body: ReconRequestBase) -> str:
+    """The SHA-256 (hex) of the request body as parsed (canonical JSON of its model, keys
+    sorted): two sends of one request give the same digest, however the JSON was spaced."""
+    return hashlib.sha256(json.dumps(body.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
 
 
 def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float]:

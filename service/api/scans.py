@@ -51,8 +51,17 @@ def start_scan(body: ScanRequest, response: Response, context: Context = Depends
                idempotency_key: str | None = Header(None, alias="Idempotency-Key", min_length=1,
                                                     max_length=200)) -> Job:
     """Queue a scan of a plan on a scanner → 202, ``Location: /api/jobs/{id}``. The scan
-    starts when the scanner is free; it owns the serial port while it runs."""
+    starts when the scanner is free; it owns the serial port while it runs. A repeat of a
+    request already answered (its ``Idempotency-Key``, the same plan, scanner and preview
+    wavelength) is answered with its job, even where the plan has been deleted since."""
     mgr = _scans(context)
+    asked: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
+    if body.preview_wavelength:
+        asked["preview_wavelength"] = body.preview_wavelength
+    earlier = context.store.find_repeat(idempotency_key, "scan", asked) if idempotency_key is not None else None
+    if earlier is not None and earlier["params"].get("preview_wavelength", 0) == body.preview_wavelength:
+        response.headers["Location"] = f"/api/jobs/{earlier['id']}"
+        return job_view(earlier)
     found = context.store.get_plan(body.plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {body.plan_id}")
@@ -62,9 +71,7 @@ def start_scan(body: ScanRequest, response: Response, context: Context = Depends
     if body.preview_wavelength >= n_w:
         raise HTTPException(422, f"preview_wavelength {body.preview_wavelength} is not one of the plan's "
                                  f"{n_w} wavelengths (0..{n_w - 1})")
-    params: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
-    if body.preview_wavelength:
-        params["preview_wavelength"] = body.preview_wavelength
+    params = asked
     try:  # the plan looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, created = lifecycle.create_job(context.store, "scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:

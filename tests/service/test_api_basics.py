@@ -10,7 +10,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from tests.service.service_servers import TOKEN, Server
+from tests.service.service_servers import TOKEN, Server, wait_job
 
 LATTICE = {"n_x": 8, "n_y": 8, "pitch": 1e-4}
 POINTS = [[0, 0], [3, 4], [7, 7], [5, 1]]
@@ -182,6 +182,20 @@ def test_idempotency_key_and_memory_admission(tmp_path):
             r4 = c.post("/api/reconstructions", json=body, headers={"Idempotency-Key": "k-2"})
             assert r4.json()["id"] != r1.json()["id"]
             assert len(c.get("/api/jobs", params={"kind": "recon"}).json()) == 2
+            # a retry answered after its input is gone: the same job, not a 404 for the dataset
+            for r in (r1, r4):
+                assert wait_job(c, r.json()["id"])["state"] == "succeeded"
+            assert c.delete(f"/api/datasets/{ds}").status_code == 200
+            again = c.post("/api/reconstructions", content=json.dumps(body, indent=2),  # spaced otherwise
+                           headers={"Idempotency-Key": "k-1", "Content-Type": "application/json"})
+            assert again.status_code == 202 and again.json()["id"] == r1.json()["id"], again.text
+            assert again.headers["location"] == r1.headers["location"]
+            assert "request_digest" not in again.json()["params"]  # the server's own bookkeeping
+            # another request under that key, or the same under an unused key, meets the input's 404
+            r = c.post("/api/reconstructions", json={**body, "params": {"eps": 1e-5}}, headers={"Idempotency-Key": "k-1"})
+            assert r.status_code == 404 and ds in r.json()["detail"], r.text
+            r = c.post("/api/reconstructions", json=body, headers={"Idempotency-Key": "k-3"})
+            assert r.status_code == 404 and ds in r.json()["detail"], r.text
             # a reconstruction that can never fit in 64 MiB is refused up front with the reason
             big = np.zeros((4096, 64, 64), dtype=np.float32)
             ds_big = c.post("/api/datasets", data={"format": "npy", "dt": "1e-8", "dx": "1e-4"},

@@ -229,6 +229,14 @@ def test_pause_resume_and_abort(scan_server, sim, tmp_path):
         while c.get("/api/scanners").json()[0]["status"] != "idle" and time.monotonic() < deadline:
             time.sleep(0.1)
         assert c.get("/api/scanners").json()[0]["status"] == "idle"
+        # a retry answered after its plan is deleted: the same job, not a 404 for the plan
+        assert c.delete(f"/api/plans/{plan['id']}").status_code == 200
+        again = c.post("/api/scans", json={"plan_id": plan["id"], "scanner_id": "sim"},
+                       headers={"Idempotency-Key": "scan-abc"})
+        assert again.status_code == 202 and again.json()["id"] == job2, again.text
+        r = c.post("/api/scans", json={"plan_id": plan["id"], "scanner_id": "sim", "preview_wavelength": 1},
+                   headers={"Idempotency-Key": "scan-abc"})  # another request under the key
+        assert r.status_code == 404 and plan["id"] in r.json()["detail"], r.text
 
 
 def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path):

@@ -137,6 +137,23 @@ class JobRecords(EventLog):
 
         return self._tx(work)
 
+    def find_repeat(self, idempotency_key: str, kind: str, request: dict) -> dict | None:
+        """The job an earlier request with ``idempotency_key`` created, when it is of ``kind``
+        and each item of ``request`` equals its parameter of that name; else None (the key is
+        unused, or the request differs: :meth:`create_job` then decides, with its conflict).
+
+        A route asks this before it looks up the request's inputs or admits it: a client's
+        retry of a request already answered gets its job, even where an input has been deleted
+        since or the disk has filled (draft-ietf-httpapi-idempotency-key-header: a repeat is
+        answered as the first request was)."""
+        with self._lock:
+            row = self._db.execute("SELECT * FROM jobs WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
+        job = self._row(row)
+        if job is None or job["kind"] != kind:
+            return None
+        asked = json.loads(json.dumps(request))
+        return job if all(job["params"].get(k) == v for k, v in asked.items()) else None
+
     def get(self, job_id: str) -> dict | None:
         with self._lock:
             hit = self._cache.get(job_id)
