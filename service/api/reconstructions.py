@@ -306,7 +306,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     queued, saying the cap, the queue's length and its estimated wait. A repeat of a request
     already answered, with its ``Idempotency-Key`` and the same body, is answered with its job
     before anything else is looked up (an input deleted since, a full disk or queue)."""
-    asked = request_digest(body)
+    asked = _request_digest(body)
     if idempotency_key is not None:
         earlier = context.store.find_repeat(idempotency_key, "recon", {"request_digest": asked})
         if earlier is not None:
@@ -373,7 +373,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     return job_view(job)
 
 
-def request_digest(body: ReconRequestBase) -> str:
+def _request_digest(body: ReconRequestBase) -> str:
     """The SHA-256 (hex) of the request body as parsed (canonical JSON of its model, keys
     sorted): two sends of one request give the same digest, however the JSON was spaced."""
     return hashlib.sha256(json.dumps(body.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
