@@ -38,7 +38,7 @@ from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
 from fpscan.clients.http.transport import Connection, raise_for
-from fpscan.clients.http.waiting import ProgressCallback
+from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["AsyncClient"]
 
@@ -131,7 +131,7 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
                         fh.write(chunk)
                 return r
         if isinstance(step, Follow):
-            stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
+            stream = self._stream(step.job_id, step.last_id, step.read_timeout, step.deadline)
             try:
                 async for event in stream:
                     report, stop = step.seen(*event)
@@ -169,7 +169,13 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
         ApiError, ServerUnavailable
             As :meth:`Client.events`.
         """
-        from httpx_sse import aconnect_sse
+        async for event in self._stream(job_id, last_event_id, read_timeout):
+            yield event
+
+    async def _stream(self, job_id: str, last_event_id: str | None, read_timeout: float,
+                      deadline: float | None = None) -> AsyncGenerator[tuple[str, dict, str | None], None]:
+        """:meth:`events`, dropped once ``deadline`` has passed (:meth:`Client._stream`)."""
+        from httpx_sse import EventSource, aconnect_sse
 
         try:
             async with aconnect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
@@ -177,7 +183,9 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
                 if source.response.status_code >= 400:
                     await source.response.aread()
                     raise_for(source.response)
-                async for sse in source.aiter_sse():
+                guard = StreamGuard(source.response, deadline)
+                async for sse in EventSource(guard).aiter_sse():  # type: ignore[arg-type]
+                    guard.event()
                     if (event := sse_event(sse)) is not None:
                         yield event
         except httpx.TransportError as exc:

@@ -63,7 +63,7 @@ from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
 from fpscan.clients.http.transport import Connection, raise_for
-from fpscan.clients.http.waiting import ProgressCallback
+from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["Client"]
 
@@ -190,7 +190,7 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
                         fh.write(chunk)
                 return r
         if isinstance(step, Follow):
-            stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
+            stream = self._stream(step.job_id, step.last_id, step.read_timeout, step.deadline)
             try:
                 for event in stream:
                     report, stop = step.seen(*event)
@@ -238,7 +238,13 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
         ServerUnavailable
             The server cannot be reached.
         """
-        from httpx_sse import connect_sse
+        yield from self._stream(job_id, last_event_id, read_timeout)
+
+    def _stream(self, job_id: str, last_event_id: str | None, read_timeout: float,
+                deadline: float | None = None) -> Generator[tuple[str, dict, str | None], None, None]:
+        """:meth:`events`, dropped (TimeoutError) once ``deadline`` (``time.monotonic()`` s) has
+        passed, keep-alive comments counting (:class:`~fpscan.clients.http.waiting.StreamGuard`)."""
+        from httpx_sse import EventSource, connect_sse
 
         try:
             with connect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
@@ -246,7 +252,9 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
                 if source.response.status_code >= 400:
                     source.response.read()
                     raise_for(source.response)
-                for sse in source.iter_sse():
+                guard = StreamGuard(source.response, deadline)
+                for sse in EventSource(guard).iter_sse():  # type: ignore[arg-type]
+                    guard.event()
                     if (event := sse_event(sse)) is not None:
                         yield event
         except httpx.TransportError as exc:

@@ -14,8 +14,8 @@ from typing import Any, TypeVar
 from fpscan.clients.http.calls import field_of
 from fpscan.clients.http.errors import ApiError, JobCancelled, JobFailed
 
-__all__ = ["TERMINAL_STATES", "ProgressCallback", "read_timeout", "past", "report_snapshot", "keep_sse",
-           "parse_event", "progress_of", "finish"]
+__all__ = ["TERMINAL_STATES", "ProgressCallback", "MAX_EVENT_BYTES", "StreamGuard", "read_timeout", "past",
+           "report_snapshot", "keep_sse", "parse_event", "progress_of", "finish"]
 
 J = TypeVar("J")
 
@@ -24,6 +24,64 @@ TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 
 #: ``on_progress(progress: dict)``: keys ``fraction, stage, points_done, points_total, rate_per_s, eta_s``
 ProgressCallback = Callable[[dict], Any]
+
+
+#: the most bytes an event stream may send between two events (a job's events are under 1 kB): past
+#: it the stream is malformed (a line or an event that never ends) and the wait polls instead
+MAX_EVENT_BYTES = 1 << 20
+
+
+class StreamGuard:
+    """What an event stream may spend: the wait's deadline and :data:`MAX_EVENT_BYTES`
+    between two events. It stands in for the stream's ``httpx.Response`` before
+    ``httpx_sse.EventSource`` (which reads only the response's ``headers`` and its text),
+    checking both on every chunk the server sends, keep-alive comments included: a comment
+    yields no event, so without it a wait's deadline went unchecked while a job was quiet
+    (the server comments every 15 s), and a line that never ended grew without bound.
+
+    Parameters
+    ----------
+    response : httpx.Response
+        The event stream's response.
+    deadline : float or None
+        ``time.monotonic()`` s past which the stream is dropped (None: none).
+
+    Raises
+    ------
+    TimeoutError
+        From the text iterators, once the deadline has passed.
+    ValueError
+        From the text iterators, when more than :data:`MAX_EVENT_BYTES` arrive without an event.
+    """
+
+    def __init__(self, response: Any, deadline: float | None = None) -> None:
+        self.response = response
+        self.headers = response.headers
+        self.deadline = deadline
+        self.pending = 0
+
+    def event(self) -> None:
+        """An event was decoded: the byte count starts again."""
+        self.pending = 0
+
+    def _check(self, text: str) -> None:
+        if past(self.deadline):
+            raise TimeoutError("the wait's deadline passed while the event stream was open")
+        self.pending += len(text)
+        if self.pending > MAX_EVENT_BYTES:
+            raise ValueError(f"the event stream sent more than {MAX_EVENT_BYTES} bytes without an event")
+
+    def iter_text(self) -> Any:
+        """The response's text, checked chunk by chunk."""
+        for text in self.response.iter_text():
+            self._check(text)
+            yield text
+
+    async def aiter_text(self) -> Any:
+        """The response's text (async), checked chunk by chunk."""
+        async for text in self.response.aiter_text():
+            self._check(text)
+            yield text
 
 
 def read_timeout(deadline: float | None) -> float:
