@@ -97,8 +97,14 @@ def _listed(api: Any, args: argparse.Namespace) -> list:
     if not 1 <= args.limit <= 1000:
         raise UsageError(f"--limit must be 1 to 1000, got {args.limit}")
     jobs: list = []
+    seen: set = set()
     page = api.list_jobs(state=args.state, kind=args.kind, limit=args.limit)
     while True:
+        ids = [field_of(job, "id") for job in page]
+        if seen.intersection(ids):  # a server that ignores ?before= (an older fpscan) pages for ever
+            raise RuntimeError("the server answered a page of jobs it had already listed (it does not page with "
+                               "?before=); list fewer with --limit, or update the server")
+        seen.update(ids)
         jobs += page
         if len(page) < args.limit:
             return jobs

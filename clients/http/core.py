@@ -34,10 +34,10 @@ import httpx
 
 from fpscan.clients.http.calls import Call, Download, Request, field_of, to_dict
 from fpscan.clients.http.endpoints.jobs import Jobs
-from fpscan.clients.http.errors import ApiError, ServerUnavailable, WaitTimeout
+from fpscan.clients.http.errors import ApiError, ServerUnavailable, WaitTimeout, error_for_status
 from fpscan.clients.http.models import Job
 from fpscan.clients.http.notebook import job_bar
-from fpscan.clients.http.transport import Resume, raise_for
+from fpscan.clients.http.transport import RangeMismatch, Resume, raise_for
 from fpscan.clients.http.waiting import (
     TERMINAL_STATES,
     ProgressCallback,
@@ -96,8 +96,9 @@ class Stream:
     resume: Resume
 
     def saves(self, response: httpx.Response) -> bool:
-        """True for a body to save (a 1xx-3xx answer), False for a 4xx/5xx."""
-        return response.status_code < 400
+        """True for a body to save (200, or 206 for the range asked), False for any other
+        answer (a redirect's or an error's body is not the file)."""
+        return response.status_code in (200, 206)
 
     def open(self, response: httpx.Response) -> IO[bytes]:
         """The file the body goes into (appended on 206)."""
@@ -402,7 +403,8 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
     ServerUnavailable
         The connection failed (the part is kept: the next call resumes it).
     ApiError
-        A 4xx/5xx answer (the part is discarded), or 416 twice.
+        A 4xx/5xx answer, or any other than 200 or 206 (a redirect: its ``Location`` named; the
+        part is discarded), or 416 twice, or twice a 206 that did not continue the part.
     """
     dest.parent.mkdir(parents=True, exist_ok=True)
     state = Resume(dest)
@@ -411,16 +413,23 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
             response = yield Stream(req, state.headers(), state)
         except httpx.TransportError as exc:  # keep the part: the next call resumes it
             raise _unavailable(base_url, exc) from None
+        except RangeMismatch:  # a 206 that does not continue the part: start over
+            state.discard()
+            continue
         except BaseException:
             state.discard()
             raise
-        if response.status_code >= 400:  # a 416: what we hold no longer fits: start over
+        if response.status_code not in (200, 206):  # a 416: what we hold no longer fits: start over
             state.discard()
             if response.status_code == 416:
                 continue
             raise_for(response)
+            where = response.headers.get("location")
+            raise error_for_status(response.status_code, f"the server answered {response.status_code}"
+                                   f"{f' (to {where})' if where else ''} instead of the file",
+                                   method=response.request.method, url=str(response.request.url))
         return state.done(), response.headers.get("content-type", "")
-    raise ApiError(416, "the server refused every byte range of the download")
+    raise ApiError(416, "the server refused every byte range of the download, or answered another range twice")
 
 
 def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | None = None,

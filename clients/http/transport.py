@@ -21,7 +21,7 @@ import httpx
 
 from fpscan.clients.http.errors import ServerUnavailable, error_for_status
 
-__all__ = ["Connection", "raise_for", "Resume", "unzip_folder"]
+__all__ = ["Connection", "raise_for", "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
 
 
 class Connection:
@@ -133,6 +133,11 @@ def raise_for(response: httpx.Response) -> None:
                                url=str(response.request.url))
 
 
+class RangeMismatch(ValueError):
+    """A 206 whose ``Content-Range`` does not continue the partial file (another start, or no
+    range): its bytes must not be appended (RFC 9110 §14.4); the download starts over."""
+
+
 class Resume:
     """Resumable download state of ``dest``: ``dest.part`` (bytes so far) and
     ``dest.part.etag`` (the validator they came with). A later download of the same
@@ -187,6 +192,13 @@ class Resume:
         file
             Opened for binary writing.
         """
+        if response.status_code == 206:
+            held = self.part.stat().st_size if self.part.exists() else 0
+            stated = response.headers.get("content-range", "")
+            unit, _, span = stated.partition(" ")
+            if unit.strip().lower() != "bytes" or span.split("-", 1)[0].strip() != str(held):
+                raise RangeMismatch(f"the server's partial answer ({stated or 'no Content-Range'}) does not "
+                                    f"continue the {held} bytes held")
         validator = response.headers.get("etag") or response.headers.get("last-modified")
         if validator:
             self.meta.write_text(validator)
@@ -212,6 +224,11 @@ class Resume:
         self.meta.unlink(missing_ok=True)
 
 
+#: the most a zip may unpack to per byte of its own: an OME-Zarr export's chunks are compressed
+#: already (about 1:1 in the zip, its JSON some 10:1); a zip of zeros packs 1000:1 and more
+MAX_ZIP_RATIO = 100
+
+
 def unzip_folder(zipped: Path, dest: Path) -> Path:
     """Unpack a zip holding one top folder (an OME-Zarr export) into the folder ``dest``
     (the top folder's name dropped), via a temporary sibling renamed into place.
@@ -231,7 +248,10 @@ def unzip_folder(zipped: Path, dest: Path) -> Path:
     Raises
     ------
     ValueError
-        A zip that is not one folder, or names a path outside it.
+        A zip that is not one folder, or names a path outside it; one that would unpack to more
+        than :data:`MAX_ZIP_RATIO` times its size (a zip bomb), or to more than the free space
+        of ``dest``'s disk (the sizes its directory declares, which bound what ``zipfile``
+        unpacks).
 
     Examples
     --------
@@ -251,6 +271,13 @@ def unzip_folder(zipped: Path, dest: Path) -> Path:
             tops = {n.split("/", 1)[0] for n in names}
             if len(tops) != 1 or any("/" not in n for n in names):
                 raise ValueError(f"{zipped.name}: expected one folder in the zip, found {sorted(tops)[:5]}")
+            total, packed = sum(i.file_size for i in z.infolist()), max(1, zipped.stat().st_size)
+            if total > MAX_ZIP_RATIO * packed:
+                raise ValueError(f"{zipped.name}: {packed} bytes that unpack to {total} ({total // packed}:1, over "
+                                 f"the {MAX_ZIP_RATIO}:1 an export reaches): refused, not unpacked")
+            free = shutil.disk_usage(dest.parent).free
+            if total > free:
+                raise ValueError(f"{zipped.name} unpacks to {total} bytes; {dest.parent} has {free} free")
             for n in names:
                 rel = Path(n.split("/", 1)[1])
                 if rel.is_absolute() or ".." in rel.parts:

@@ -67,3 +67,90 @@ def test_an_event_line_that_never_ends_is_dropped_after_a_bounded_read():
     # what the client read, plus what the sockets' buffers held when it hung up
     assert max(r.sent for r in streams) < MAX_EVENT_BYTES + (16 << 20), [r.sent for r in streams]
     assert any(r.path == "/api/jobs/J1" for r in requests[requests.index(streams[0]) + 1:])  # then it polled
+
+
+def file_server(body: bytes, partial):
+    """Serves ``body`` as a volume: ``partial(req)`` answers a request with a ``Range`` (a first
+    request without one is cut after 3/4 of the body, so the client holds a part to resume)."""
+    cuts: list = []
+
+    def route(req: Request) -> None:
+        if "range" in req.headers:
+            partial(req)
+            return
+        req.head(200, {"Content-Type": "application/x-hdf5", "Content-Length": len(body), "ETag": '"v1"'})
+        req.send(body if cuts else body[: len(body) * 3 // 4])
+        cuts.append(True)
+    return route
+
+
+def test_a_redirect_is_not_saved_as_the_download(tmp_path):
+    """A 3xx on a download (a proxy's or a stranger's) was saved as the volume, exit 0: the
+    file is any answer but 200/206, named with its Location, and nothing is left at ``dest``."""
+    from fpscan.clients.http.errors import ApiError
+
+    def route(req: Request) -> None:
+        req.head(307, {"Location": "http://10.255.255.1/volume.h5", "Content-Length": 5})
+        req.send(b"Moved")
+
+    with hostile_server(route) as (url, _), Client(url) as api:
+        with pytest.raises(ApiError, match=r"307 \(to http://10.255.255.1/volume.h5\) instead of the file"):
+            api.download_volume("J1", tmp_path / "v.h5")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_partial_answer_that_does_not_continue_the_part_starts_the_download_over(tmp_path):
+    """A resumed download asks ``Range: bytes=HELD-``; a 206 whose ``Content-Range`` starts
+    elsewhere (here: the whole file again) was appended to the part, and a file of 7/4 the size
+    returned as the volume. Such a 206 is discarded and the file fetched whole."""
+    from fpscan.clients.http.errors import ServerUnavailable
+
+    body = bytes(range(256)) * (16 << 10)  # 4 MiB
+
+    def whole_as_206(req: Request) -> None:
+        req.head(206, {"Content-Range": f"bytes 0-{len(body) - 1}/{len(body)}", "Content-Length": len(body),
+                       "ETag": '"v1"'})
+        req.send(body)
+
+    with hostile_server(file_server(body, whole_as_206)) as (url, requests), Client(url) as api:
+        with pytest.raises(ServerUnavailable):  # the first answer is cut: the part is kept
+            api.download_volume("J1", tmp_path / "v.h5")
+        assert (tmp_path / "v.h5.part").stat().st_size == len(body) * 3 // 4
+        api.download_volume("J1", tmp_path / "v.h5")
+    assert (tmp_path / "v.h5").read_bytes() == body
+    assert [("range" in r.headers) for r in requests] == [False, True, False]  # cut, refused 206, whole
+
+
+def test_a_zip_that_unpacks_to_far_more_than_an_export_is_refused(tmp_path):
+    """An OME-Zarr export arrives zipped; a zip of zeros unpacks 1000:1 and more, so 100 MB
+    became 100 GB on the user's disk. Refused before anything is unpacked."""
+    import zipfile
+
+    from fpscan.clients.http.transport import MAX_ZIP_RATIO, unzip_folder
+
+    bomb = tmp_path / "v.zip"
+    with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("v.ome.zarr/zarr.json", "{}")
+        z.writestr("v.ome.zarr/0/c/0/0/0", bytes(64 << 20))
+    with pytest.raises(ValueError, match=f"over the {MAX_ZIP_RATIO}:1 an export reaches"):
+        unzip_folder(bomb, tmp_path / "out.ome.zarr")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.zip"]
+
+
+def test_jobs_list_all_stops_on_a_server_that_does_not_page(tmp_path):
+    """``fpscan jobs list --all`` asks page after page with ``?before=``; a server that ignores it
+    (an older fpscan) answered the same page for ever, and the command never ended (1.8 GiB
+    after 40 s). It stops with the reason at the first page it has seen before."""
+    import subprocess
+    import sys
+
+    from tests.waits import HANG_S
+
+    def route(req: Request) -> None:
+        req.json([{**RUNNING, "id": "J2"}, {**RUNNING, "id": "J1"}])
+
+    with hostile_server(route) as (url, requests):
+        res = subprocess.run([sys.executable, "-m", "fpscan", "jobs", "list", "--all", "--limit", "2",
+                              "--server", url], capture_output=True, text=True, timeout=HANG_S)
+    assert res.returncode == 1 and "already listed" in res.stderr, (res.returncode, res.stderr[-500:])
+    assert len(requests) == 2
