@@ -8,10 +8,11 @@ in ``failed``/``cancelled`` while being waited on raise :class:`JobFailed` /
 """
 from __future__ import annotations
 
+import unicodedata
 from typing import Any
 
 __all__ = [
-    "FpscanClientError", "ServerUnavailable", "format_detail", "ApiError", "AuthError", "NotFound",
+    "FpscanClientError", "ServerUnavailable", "MAX_DETAIL_CHARS", "format_detail", "ApiError", "AuthError", "NotFound",
     "TOKEN_HINT", "Conflict", "JobError", "JobFailed", "JobCancelled", "WaitTimeout", "error_for_status",
 ]
 
@@ -65,8 +66,25 @@ class ServerUnavailable(FpscanClientError):
         super().__init__(f"cannot reach fpscan server at {base_url}: {reason}")
 
 
+#: the most characters of a server's reason shown (the rest named by its length): fpscan's own
+#: reasons are under 1000; a server's 5 MB "reason" was one line of 5 MB on the terminal
+MAX_DETAIL_CHARS = 2000
+
+
+def _one_line(text: str) -> str:
+    """``text`` safe for a terminal line: line breaks and tabs as spaces, every other control
+    character (an escape sequence's ESC, which can recolour or retitle the terminal) shown as
+    a backslash, ``x`` and its two hex digits, cut at :data:`MAX_DETAIL_CHARS`."""
+    out = "".join(" " if c in "\r\n\t" else (f"\\x{ord(c):02x}" if unicodedata.category(c) == "Cc" else c)
+                  for c in text[: MAX_DETAIL_CHARS + 1])
+    if len(text) > MAX_DETAIL_CHARS:
+        out = f"{out[:MAX_DETAIL_CHARS]}... ({len(text) - MAX_DETAIL_CHARS} characters more)"
+    return out
+
+
 def format_detail(detail: Any) -> str:
-    """Render a FastAPI ``detail`` on one line.
+    """Render a FastAPI ``detail`` on one line: control characters escaped, at most
+    :data:`MAX_DETAIL_CHARS` characters (the rest counted).
 
     Parameters
     ----------
@@ -88,6 +106,11 @@ def format_detail(detail: Any) -> str:
     >>> format_detail(None)
     ''
     """
+    return _one_line(_joined(detail))
+
+
+def _joined(detail: Any) -> str:
+    """:func:`format_detail` before it is made one safe line."""
     if detail is None:
         return ""
     if isinstance(detail, str):

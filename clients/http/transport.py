@@ -135,7 +135,21 @@ def raise_for(response: httpx.Response) -> None:
 
 class RangeMismatch(ValueError):
     """A 206 whose ``Content-Range`` does not continue the partial file (another start, or no
-    range): its bytes must not be appended (RFC 9110 §14.4); the download starts over."""
+    range): its bytes must not be appended (RFC 9110 §14.4); the download starts over.
+
+    A ``ValueError`` raised by :meth:`Resume.open`.
+
+    Attributes
+    ----------
+    args : tuple
+        The message: the range the server stated and the bytes held.
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.transport import RangeMismatch
+    >>> issubclass(RangeMismatch, ValueError)
+    True
+    """
 
 
 class Resume:

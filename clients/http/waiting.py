@@ -46,12 +46,34 @@ class StreamGuard:
     deadline : float or None
         ``time.monotonic()`` s past which the stream is dropped (None: none).
 
+    Attributes
+    ----------
+    response : httpx.Response
+        The response it stands in for.
+    headers : httpx.Headers
+        The response's headers (``EventSource`` checks the content type there).
+    deadline : float or None
+        As given.
+    pending : int
+        Characters received since the last event.
+
     Raises
     ------
     TimeoutError
         From the text iterators, once the deadline has passed.
     ValueError
         From the text iterators, when more than :data:`MAX_EVENT_BYTES` arrive without an event.
+
+    Examples
+    --------
+    >>> import httpx
+    >>> from fpscan.clients.http.waiting import StreamGuard
+    >>> response = httpx.Response(200, text=": keep-alive", headers={"Content-Type": "text/event-stream"})
+    >>> guard = StreamGuard(response, deadline=0.0)  # a deadline long past
+    >>> next(guard.iter_text())
+    Traceback (most recent call last):
+    ...
+    TimeoutError: the wait's deadline passed while the event stream was open
     """
 
     def __init__(self, response: Any, deadline: float | None = None) -> None:

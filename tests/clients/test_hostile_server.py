@@ -154,3 +154,22 @@ def test_jobs_list_all_stops_on_a_server_that_does_not_page(tmp_path):
                               "--server", url], capture_output=True, text=True, timeout=HANG_S)
     assert res.returncode == 1 and "already listed" in res.stderr, (res.returncode, res.stderr[-500:])
     assert len(requests) == 2
+
+
+def test_a_servers_reason_is_shown_as_one_bounded_safe_line():
+    """The server's ``detail`` is printed on the user's terminal: a 5 MB one was a 5 MB line, and
+    one with line breaks and escape sequences printed a fake traceback and retitled the terminal.
+    Shown as one line, control characters escaped, cut at ``MAX_DETAIL_CHARS`` (the rest counted)."""
+    from fpscan.clients.http.errors import MAX_DETAIL_CHARS, ApiError
+
+    reason = "line one\nTraceback (fake)\n\x1b]0;title\x07 " + "x" * (5 << 20)
+
+    def route(req: Request) -> None:
+        req.json({"detail": reason}, 500)
+
+    with hostile_server(route) as (url, _), Client(url) as api, pytest.raises(ApiError) as caught:
+        api.list_jobs()
+    shown = str(caught.value)
+    assert "\n" not in shown and "\x1b" not in shown and "\x07" not in shown, shown[:200]
+    assert "line one Traceback (fake) \\x1b]0;title\\x07" in shown, shown[:200]
+    assert len(shown) < MAX_DETAIL_CHARS + 100 and f"({len(reason) - MAX_DETAIL_CHARS} characters more)" in shown
