@@ -323,7 +323,9 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit status: the sub-command's (0 when it returns None); 2 for refused input
         (``ValueError``, :class:`fpscan.driver.units.RefusedInput`) or a missing extra; 1 when the
-        work failed (``OSError``, ``RuntimeError``); 130 when interrupted; :data:`CLOSED_PIPE`
+        work failed (``OSError``, ``RuntimeError``) or, with ``--server``, the server's answer had a
+        shape the command could not read (a ``KeyError``, ``TypeError``, ``AttributeError`` or
+        ``IndexError``: one line naming the server, not a traceback); 130 when interrupted; :data:`CLOSED_PIPE`
         when stdout's reader went away. argparse's own errors and ``--help``/``--version``
         exit through ``SystemExit``.
     """
@@ -363,6 +365,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (OSError, RuntimeError) as exc:  # the work failed (I/O, a device)
         print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
+        return 1
+    except (KeyError, TypeError, AttributeError, IndexError) as exc:
+        from fpscan.clients.http.errors import format_detail
+
+        server = getattr(args, "server", None)
+        if not server:
+            raise  # this program's own fault: its traceback is the report
+        # an answer of another shape than this client's (an older or newer server, or not fpscan)
+        print(f"fpscan {args.command}: error: the server at {server} answered in a shape this client does not "
+              f"read ({type(exc).__name__}: {format_detail(reason(exc))[:300]}); is it an fpscan server of this version "
+              f"(`fpscan --version`, GET {server.rstrip('/')}/api/health)?", file=sys.stderr)
         return 1
     return int(code or 0)
 

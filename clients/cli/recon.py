@@ -353,7 +353,9 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
                                               params=_params(args), plan_id=plan_id)
-        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
+        if job_id is None:  # a 202 names its job (fpscan.clients.http.calls.read_job_id): this one did not
+            raise RuntimeError(f"the server accepted the job (HTTP 202) but named no job id; find it with "
+                               f"`fpscan jobs list --server {args.server}`")
         from fpscan.clients.cli.common import remember_job
 
         remember_job(args, job_id)

@@ -297,7 +297,9 @@ def _remote(args: argparse.Namespace) -> int:
                 raise UsageError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
-        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
+        if job_id is None:  # a 202 names its job (fpscan.clients.http.calls.read_job_id): this one did not
+            raise RuntimeError(f"the server accepted the job (HTTP 202) but named no job id; find it with "
+                               f"`fpscan jobs list --server {args.server}`")
         from fpscan.clients.cli.common import remember_job
 
         remember_job(args, job_id)

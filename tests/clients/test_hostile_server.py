@@ -173,3 +173,29 @@ def test_a_servers_reason_is_shown_as_one_bounded_safe_line():
     assert "\n" not in shown and "\x1b" not in shown and "\x07" not in shown, shown[:200]
     assert "line one Traceback (fake) \\x1b]0;title\\x07" in shown, shown[:200]
     assert len(shown) < MAX_DETAIL_CHARS + 100 and f"({len(reason) - MAX_DETAIL_CHARS} characters more)" in shown
+
+
+@pytest.mark.parametrize("command, route, said", [
+    (["datasets", "list"], lambda req: req.json([{"name": "a.h5", "format": "fpscan", "size_bytes": 1}]),
+     "answered in a shape this client does not read (KeyError: 'dataset_id')"),
+    (["jobs", "list"], lambda req: req.json([{**RUNNING, "progress": [1, 2]}]),
+     "answered in a shape this client does not read (AttributeError"),
+    (["recon", "--scan-job", "J1", "--method", "ner"],
+     lambda req: req.json({"accepted": True}, 202) if req.method == "POST" else req.json(RUNNING),
+     "the server accepted the job (HTTP 202) but named no job id"),
+], ids=["dataset-without-id", "progress-a-list", "202-without-id"])
+def test_an_answer_of_another_shape_is_one_line_not_a_traceback(tmp_path, command, route, said):
+    """The command line read the server's answers as its own server writes them; another shape
+    (an older or newer server, or not fpscan) ended in a Python traceback (a KeyError,
+    AttributeError, or an AssertionError after the server had accepted a job). Exit 1, one
+    line naming the server."""
+    import subprocess
+    import sys
+
+    from tests.waits import HANG_S
+
+    with hostile_server(route) as (url, _):
+        res = subprocess.run([sys.executable, "-m", "fpscan", *command, "--server", url], capture_output=True,
+                             text=True, timeout=HANG_S, cwd=tmp_path)
+    assert res.returncode == 1 and said in res.stderr, (res.returncode, res.stderr[-800:])
+    assert "Traceback" not in res.stderr, res.stderr[-800:]
