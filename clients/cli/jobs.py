@@ -172,7 +172,10 @@ def run(args: argparse.Namespace) -> int:
             for j in jobs:
                 prog = to_dict(field_of(j, "progress")) or {}
                 frac = prog.get("fraction")
-                pct = f"{100 * frac:5.1f}%" if frac is not None else ""
+                if isinstance(frac, (int, float)) and not isinstance(frac, bool) and 0 <= frac <= 1:
+                    pct = f"{100 * frac:5.1f}%"
+                else:  # none given, or not a fraction (NaN fails 0 <= frac): not shown as one
+                    pct = "    ?" if frac is not None else ""
                 print(f"{field_of(j, 'id')!s:<12.12}  {field_of(j, 'kind')!s:<5}  "
                       f"{field_of(j, 'state')!s:<10}  {_what(j):<58}  {pct} {prog.get('stage') or ''}".rstrip())
             return 0

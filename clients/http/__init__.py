@@ -6,6 +6,7 @@ from fpscan.clients.http.client import Client
 from fpscan.clients.http.errors import (
     ApiError,
     AuthError,
+    BadAnswer,
     Conflict,
     FpscanClientError,
     JobCancelled,
@@ -19,6 +20,6 @@ from fpscan.clients.http.waiting import TERMINAL_STATES
 
 __all__ = [
     "AsyncClient", "Client", "TERMINAL_STATES", "field_of", "to_dict",
-    "ApiError", "AuthError", "Conflict", "FpscanClientError", "JobCancelled", "JobError",
+    "ApiError", "AuthError", "BadAnswer", "Conflict", "FpscanClientError", "JobCancelled", "JobError",
     "JobFailed", "NotFound", "ServerUnavailable", "WaitTimeout",
 ]

@@ -34,7 +34,7 @@ import httpx
 
 from fpscan.clients.http.calls import Call, Download, Request, field_of, to_dict
 from fpscan.clients.http.endpoints.jobs import Jobs
-from fpscan.clients.http.errors import ApiError, ServerUnavailable, WaitTimeout, error_for_status
+from fpscan.clients.http.errors import ApiError, BadAnswer, ServerUnavailable, WaitTimeout, error_for_status
 from fpscan.clients.http.models import Job
 from fpscan.clients.http.notebook import job_bar
 from fpscan.clients.http.transport import RangeMismatch, Resume, raise_for
@@ -344,6 +344,8 @@ def call_flow(call: Call[T] | Download[T], base_url: str) -> Flow[T]:
         The server cannot be reached.
     ApiError
         A 4xx/5xx answer (its subclass by status).
+    BadAnswer
+        A redirect, or a body ``call.read`` cannot read (not JSON, another shape).
 
     Examples
     --------
@@ -366,7 +368,14 @@ def call_flow(call: Call[T] | Download[T], base_url: str) -> Flow[T]:
         got, content_type = yield from download_flow(call.request, call.dest, base_url)
         return call.finish(got, content_type)
     response = yield from _send(call.request, base_url)
-    return call.read(response)
+    what = f"{call.request.method} {call.request.path}"
+    if response.status_code >= 300:  # a redirect, never followed: its body is no answer
+        where = response.headers.get("location")
+        raise BadAnswer(base_url, what, f"HTTP {response.status_code}{f' to {where}' if where else ''}")
+    try:
+        return call.read(response)
+    except ValueError as exc:  # not JSON, or JSON of another shape than the answer's
+        raise BadAnswer(base_url, what, f"{type(exc).__name__}: {exc}") from None
 
 
 def _send(req: Request, base_url: str) -> Flow[httpx.Response]:

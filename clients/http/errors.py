@@ -12,7 +12,7 @@ import unicodedata
 from typing import Any
 
 __all__ = [
-    "FpscanClientError", "ServerUnavailable", "MAX_DETAIL_CHARS", "format_detail", "ApiError", "AuthError", "NotFound",
+    "FpscanClientError", "ServerUnavailable", "BadAnswer", "MAX_DETAIL_CHARS", "format_detail", "ApiError", "AuthError", "NotFound",
     "TOKEN_HINT", "Conflict", "JobError", "JobFailed", "JobCancelled", "WaitTimeout", "error_for_status",
 ]
 
@@ -80,6 +80,42 @@ def _one_line(text: str) -> str:
     if len(text) > MAX_DETAIL_CHARS:
         out = f"{out[:MAX_DETAIL_CHARS]}... ({len(text) - MAX_DETAIL_CHARS} characters more)"
     return out
+
+
+class BadAnswer(FpscanClientError, RuntimeError):
+    """The server answered, but not with what the call reads: a body that is not JSON, JSON of
+    another shape than the answer's (a list where a record belongs), or a redirect (never
+    followed) where an answer belongs. An older or newer server, or not an fpscan server.
+
+    A ``RuntimeError``: the command line exits 1 with its message.
+
+    Parameters
+    ----------
+    base_url : str
+        The server.
+    what : str
+        The request, ``"GET /api/jobs"``.
+    reason : str
+        What did not fit.
+
+    Attributes
+    ----------
+    base_url, what, reason : str
+        As given.
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.errors import BadAnswer
+    >>> print(BadAnswer("http://h:8000", "GET /api/jobs", "not JSON"))
+    the server at http://h:8000 answered GET /api/jobs with what this client cannot read: not JSON
+    """
+
+    def __init__(self, base_url: str, what: str, reason: str):
+        self.base_url = base_url
+        self.what = what
+        self.reason = reason
+        super().__init__(f"the server at {base_url} answered {what} with what this client cannot read: "
+                         f"{_one_line(reason)}")
 
 
 def format_detail(detail: Any) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 
 import pytest
 
@@ -199,3 +200,47 @@ def test_an_answer_of_another_shape_is_one_line_not_a_traceback(tmp_path, comman
                              text=True, timeout=HANG_S, cwd=tmp_path)
     assert res.returncode == 1 and said in res.stderr, (res.returncode, res.stderr[-800:])
     assert "Traceback" not in res.stderr, res.stderr[-800:]
+
+
+@pytest.mark.parametrize("answer, said", [
+    (lambda req: (req.head(200, {"Content-Type": "application/json", "Content-Length": 9}), req.send(b"<html>hi!")),
+     "JSONDecodeError"),
+    (lambda req: (req.head(301, {"Location": "http://127.0.0.1:9/api/jobs", "Content-Length": 0})),
+     "HTTP 301 to http://127.0.0.1:9/api/jobs"),
+    (lambda req: req.json(["a", "b"]), "ValidationError"),
+], ids=["not-json", "redirect", "list-of-strings"])
+def test_an_answer_the_client_cannot_read_is_a_bad_answer(answer, said):
+    """A body that is not JSON, a redirect (never followed) or JSON of another shape was a bare
+    JSONDecodeError or pydantic error, which the command line reported as a usage error (exit 2)
+    in the decoder's words. It is a ``BadAnswer`` naming the server and the request (exit 1)."""
+    from fpscan.clients.http import BadAnswer
+
+    with hostile_server(answer) as (url, _), Client(url) as api, pytest.raises(BadAnswer) as caught:
+        api.list_jobs()
+    assert f"the server at {url} answered GET /api/jobs with what this client cannot read" in str(caught.value)
+    assert said in str(caught.value), str(caught.value)
+
+
+def test_jobs_list_shows_a_fraction_that_is_none_as_unknown(tmp_path):
+    """A progress fraction that is text, NaN or past 1 printed "nan%" or "inf%", or ended the
+    listing with a format error (exit 2); it shows as "?"."""
+    import subprocess
+    import sys
+
+    from tests.waits import HANG_S
+
+    jobs = [{**RUNNING, "id": f"J{i}", "progress": {"fraction": f, "stage": "x"}}
+            for i, f in enumerate(["half", float("nan"), 1e308, 0.25])]
+
+    def route(req: Request) -> None:
+        data = json.dumps(jobs).encode()  # NaN as JSON's NaN, as Python writes it
+        req.head(200, {"Content-Type": "application/json", "Content-Length": len(data)})
+        req.send(data)
+
+    with hostile_server(route) as (url, _):
+        res = subprocess.run([sys.executable, "-m", "fpscan", "jobs", "list", "--server", url], capture_output=True,
+                             text=True, timeout=HANG_S, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-500:]
+    shown = {line.split()[0]: line for line in res.stdout.splitlines()[1:]}
+    assert all(shown[f"J{i}"].rstrip().endswith("? x") for i in range(3)), res.stdout
+    assert shown["J3"].rstrip().endswith("25.0% x") and "nan" not in res.stdout and "inf" not in res.stdout
