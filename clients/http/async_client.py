@@ -9,14 +9,17 @@ one ``httpx.AsyncClient``: the same endpoints, requests, answers and return type
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import AsyncGenerator
 from typing import TypeVar
 
 import httpx
 
-from fpscan.clients.http.calls import AsyncCaller, Call, Download
+from fpscan.clients.http.calls import AsyncCaller, Call, Download, Request
 from fpscan.clients.http.core import (
-    CHUNK_BYTES,
+    MAX_ANSWER_BYTES,
+    MAX_ERROR_BYTES,
+    BodyCheck,
     Driver,
     Flow,
     Follow,
@@ -119,15 +122,18 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
     async def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
             with request_args(step.request) as args:
-                return await self._http.request(**args)
+                async with self._http.stream(**args) as r:
+                    return await self._bounded(r, step.request,
+                                               MAX_ANSWER_BYTES if r.status_code < 400 else MAX_ERROR_BYTES)
         if isinstance(step, Stream):
             req = step.request
             async with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
                 if not step.saves(r):  # a 4xx/5xx: its detail for the flow
-                    await r.aread()
-                    return r
+                    return await self._bounded(r, req, MAX_ERROR_BYTES)
+                check = BodyCheck(self.base_url, f"{req.method} {req.path}", math.inf, self.timeout, keep=False)
                 with step.open(r) as fh:
-                    async for chunk in r.aiter_bytes(CHUNK_BYTES):
+                    async for chunk in r.aiter_bytes():
+                        check.add(chunk)  # a trickle is dropped (the part kept: resumable)
                         fh.write(chunk)
                 return r
         if isinstance(step, Follow):
@@ -149,6 +155,16 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
         if asyncio.iscoroutine(res):  # a coroutine function's on_progress
             await res
         return None
+
+    async def _bounded(self, r: httpx.Response, req: Request, cap: int) -> httpx.Response:
+        """``r``'s body read within :class:`~fpscan.clients.http.core.BodyCheck`'s bounds."""
+        check = BodyCheck(self.base_url, f"{req.method} {req.path}", cap, self.timeout)
+        async for chunk in r.aiter_bytes():
+            if r.status_code >= 400 and check.size + len(chunk) > cap:  # an error's reason: its start will do
+                check.add(chunk[: cap - check.size])
+                break
+            check.add(chunk)
+        return check.response(r)
 
     # -- events and waiting
     async def events(self, job_id: str, *, last_event_id: str | None = None,

@@ -33,15 +33,18 @@ Example::
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Generator
 from typing import TypeVar
 
 import httpx
 
-from fpscan.clients.http.calls import Call, Download, SyncCaller
+from fpscan.clients.http.calls import Call, Download, Request, SyncCaller
 from fpscan.clients.http.core import (
-    CHUNK_BYTES,
+    MAX_ANSWER_BYTES,
+    MAX_ERROR_BYTES,
+    BodyCheck,
     Driver,
     Flow,
     Follow,
@@ -177,16 +180,17 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
 
     def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
-            with request_args(step.request) as args:
-                return self._http.request(**args)
+            with request_args(step.request) as args, self._http.stream(**args) as r:
+                return self._bounded(r, step.request, MAX_ANSWER_BYTES if r.status_code < 400 else MAX_ERROR_BYTES)
         if isinstance(step, Stream):
             req = step.request
             with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
                 if not step.saves(r):  # a 4xx/5xx: its detail for the flow
-                    r.read()
-                    return r
+                    return self._bounded(r, req, MAX_ERROR_BYTES)
+                check = BodyCheck(self.base_url, f"{req.method} {req.path}", math.inf, self.timeout, keep=False)
                 with step.open(r) as fh:
-                    for chunk in r.iter_bytes(CHUNK_BYTES):
+                    for chunk in r.iter_bytes():
+                        check.add(chunk)  # a trickle is dropped (the part kept: resumable)
                         fh.write(chunk)
                 return r
         if isinstance(step, Follow):
@@ -206,6 +210,16 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
             return None
         step.call()
         return None
+
+    def _bounded(self, r: httpx.Response, req: Request, cap: int) -> httpx.Response:
+        """``r``'s body read within :class:`~fpscan.clients.http.core.BodyCheck`'s bounds."""
+        check = BodyCheck(self.base_url, f"{req.method} {req.path}", cap, self.timeout)
+        for chunk in r.iter_bytes():
+            if r.status_code >= 400 and check.size + len(chunk) > cap:  # an error's reason: its start will do
+                check.add(chunk[: cap - check.size])
+                break
+            check.add(chunk)
+        return check.response(r)
 
     # -- events and waiting
     def events(self, job_id: str, *, last_event_id: str | None = None,

@@ -54,12 +54,85 @@ if TYPE_CHECKING:
     from httpx_sse import ServerSentEvent
 
 __all__ = ["Send", "Stream", "Follow", "Sleep", "Report", "Step", "Flow", "Driver", "call_flow", "download_flow",
-           "wait_flow", "request_args", "events_request", "sse_event", "CHUNK_BYTES"]
+           "wait_flow", "request_args", "events_request", "sse_event", "MAX_ANSWER_BYTES",
+           "MAX_ERROR_BYTES", "MIN_BODY_RATE", "BodyCheck"]
 
 T = TypeVar("T")
 
-#: bytes per chunk written while a download's body streams in
-CHUNK_BYTES = 1 << 20
+#: the most bytes of an answer the client reads into memory (a list of 1000 jobs is about 1 MB, a
+#: plan of 100 000 points about 5 MB); a bigger one is no fpscan answer (:class:`BodyCheck`)
+MAX_ANSWER_BYTES = 64 << 20
+#: the most bytes of an error's answer read for its reason
+MAX_ERROR_BYTES = 1 << 20
+#: bytes/s an answer's body must average once the request's timeout has passed since its head
+#: arrived: httpx's timeout bounds each read, so a server sending a byte now and then held a call
+#: for ever (a minimum rate, as Apache's ``mod_reqtimeout`` ``MinRate``)
+MIN_BODY_RATE = 1000
+
+
+class BodyCheck:
+    """The bounds of one answer's body as a client reads it chunk by chunk: at most ``cap``
+    bytes (decoded: a gzip bomb counts what it unpacks to), and, once ``timeout`` s have passed
+    since the answer's head arrived, an average of :data:`MIN_BODY_RATE` bytes/s.
+
+    Parameters
+    ----------
+    base_url, what : str
+        The server and the request (``"GET /api/jobs"``), for the errors.
+    cap : float
+        Bytes (``math.inf`` for a download, which goes to a file).
+    timeout : float
+        The client's seconds per request.
+    keep : bool, optional
+        Keep the chunks for :meth:`response` (default True; False for a download).
+
+    Attributes
+    ----------
+    chunks : list of bytes
+        What was read.
+
+    Raises
+    ------
+    BadAnswer
+        (From :meth:`add`) past ``cap``.
+    ServerUnavailable
+        (From :meth:`add`) under the minimum rate.
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.core import BodyCheck
+    >>> check = BodyCheck("http://h", "GET /api/jobs", cap=4, timeout=30.0)
+    >>> check.add(b"[1]")
+    >>> check.add(b"[2]")
+    Traceback (most recent call last):
+    ...
+    fpscan.clients.http.errors.BadAnswer: the server at http://h answered GET /api/jobs with what this client cannot read: more than 4 bytes (an answer of fpscan's is far smaller)
+    """
+
+    def __init__(self, base_url: str, what: str, cap: float, timeout: float, *, keep: bool = True) -> None:
+        self.base_url, self.what, self.cap, self.timeout, self.keep = base_url, what, cap, timeout, keep
+        self.chunks: list[bytes] = []
+        self.size = 0
+        self.start = time.monotonic()
+
+    def add(self, chunk: bytes) -> None:
+        """Keep ``chunk``, or raise past the bounds."""
+        self.size += len(chunk)
+        if self.size > self.cap:
+            raise BadAnswer(self.base_url, self.what, f"more than {self.cap} bytes (an answer of fpscan's is far smaller)")
+        late = time.monotonic() - self.start - self.timeout
+        if late > 0 and self.size < MIN_BODY_RATE * late:
+            raise ServerUnavailable(self.base_url, f"its answer to {self.what} came at under {MIN_BODY_RATE} bytes/s "
+                                                   f"({self.size} bytes in {late + self.timeout:.0f} s)")
+        if self.keep:
+            self.chunks.append(chunk)
+
+    def response(self, streamed: httpx.Response) -> httpx.Response:
+        """The answer with the body read (decoded: its ``Content-Encoding`` dropped)."""
+        headers = [(k, v) for k, v in streamed.headers.multi_items()
+                   if k.lower() not in ("content-encoding", "content-length", "transfer-encoding")]
+        return httpx.Response(streamed.status_code, headers=headers, content=b"".join(self.chunks),
+                              request=streamed.request)
 
 
 @dataclass(frozen=True)
@@ -78,7 +151,7 @@ class Send:
 @dataclass
 class Stream:
     """Send ``request`` with ``headers`` and stream the answer: a body to save
-    (:meth:`saves`) is written in chunks of :data:`CHUNK_BYTES` into ``open(response)``, a
+    (:meth:`saves`) is written as it arrives into ``open(response)`` (:class:`BodyCheck`: at a minimum rate), a
     4xx/5xx (a 416 too) is read whole; answer: the ``httpx.Response`` (the flow decides:
     a 416 starts over, another 4xx/5xx is raised, :func:`download_flow`).
 
@@ -422,6 +495,8 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
             response = yield Stream(req, state.headers(), state)
         except httpx.TransportError as exc:  # keep the part: the next call resumes it
             raise _unavailable(base_url, exc) from None
+        except ServerUnavailable:  # a body under the minimum rate (BodyCheck): keep the part too
+            raise
         except RangeMismatch:  # a 206 that does not continue the part: start over
             state.discard()
             continue

@@ -158,12 +158,13 @@ def test_jobs_list_all_stops_on_a_server_that_does_not_page(tmp_path):
 
 
 def test_a_servers_reason_is_shown_as_one_bounded_safe_line():
-    """The server's ``detail`` is printed on the user's terminal: a 5 MB one was a 5 MB line, and
+    """The server's ``detail`` is printed on the user's terminal: a 5 MB one was a 5 MB line (an
+    error's body is now read to ``MAX_ERROR_BYTES``; this one is half a MiB), and
     one with line breaks and escape sequences printed a fake traceback and retitled the terminal.
     Shown as one line, control characters escaped, cut at ``MAX_DETAIL_CHARS`` (the rest counted)."""
     from fpscan.clients.http.errors import MAX_DETAIL_CHARS, ApiError
 
-    reason = "line one\nTraceback (fake)\n\x1b]0;title\x07 " + "x" * (5 << 20)
+    reason = "line one\nTraceback (fake)\n\x1b]0;title\x07 " + "x" * (512 << 10)
 
     def route(req: Request) -> None:
         req.json({"detail": reason}, 500)
@@ -244,3 +245,42 @@ def test_jobs_list_shows_a_fraction_that_is_none_as_unknown(tmp_path):
     shown = {line.split()[0]: line for line in res.stdout.splitlines()[1:]}
     assert all(shown[f"J{i}"].rstrip().endswith("? x") for i in range(3)), res.stdout
     assert shown["J3"].rstrip().endswith("25.0% x") and "nan" not in res.stdout and "inf" not in res.stdout
+
+
+def test_an_answer_larger_than_any_of_fpscans_is_refused_at_its_cap():
+    """A JSON answer was read into memory whole, however large (a 300 MB one took 860 MiB, a
+    500's body 1.5 GiB): the client stops at ``MAX_ANSWER_BYTES`` with a ``BadAnswer``."""
+    from fpscan.clients.http import BadAnswer
+    from fpscan.clients.http.core import MAX_ANSWER_BYTES
+
+    def route(req: Request) -> None:
+        req.head(200, {"Content-Type": "application/json"})  # a body that ends at the close
+        req.send(b"[")
+        while req.send(b'"x",' * 16384):
+            pass
+
+    with hostile_server(route) as (url, requests), Client(url) as api, pytest.raises(BadAnswer) as caught:
+        api.list_jobs()
+    assert f"more than {MAX_ANSWER_BYTES} bytes" in str(caught.value)
+    assert requests[0].sent < MAX_ANSWER_BYTES + (16 << 20), requests[0].sent  # it hung up there
+
+
+@pytest.mark.timeout(120)
+def test_an_answer_that_trickles_in_ends_after_the_timeout(tmp_path):
+    """httpx's timeout bounds each read: a server sending a byte now and then held ``list_jobs``
+    (and ``fpscan jobs list``, and a download) for ever. Once the client's timeout has passed, a
+    body must average ``MIN_BODY_RATE`` bytes/s."""
+    from fpscan.clients.http.core import MIN_BODY_RATE
+    from fpscan.clients.http.errors import ServerUnavailable
+
+    def route(req: Request) -> None:
+        req.head(200, {"Content-Type": "application/json", "Content-Length": 1000})
+        while req.send(b" "):
+            req.hung_up.wait(0.2)
+
+    with hostile_server(route) as (url, _), Client(url, timeout=1.0) as api:
+        with pytest.raises(ServerUnavailable, match=f"under {MIN_BODY_RATE} bytes/s"):
+            api.list_jobs()
+        with pytest.raises(ServerUnavailable, match=f"under {MIN_BODY_RATE} bytes/s"):
+            api.download_volume("J1", tmp_path / "v.h5")
+    assert (tmp_path / "v.h5.part").exists() and not (tmp_path / "v.h5").exists()  # kept, to resume
