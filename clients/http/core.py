@@ -464,6 +464,25 @@ def _unavailable(base_url: str, exc: Exception) -> ServerUnavailable:
     return ServerUnavailable(base_url, str(exc) or type(exc).__name__)
 
 
+#: the first bytes of the files the API serves, by how their route ends: an HDF5 volume, unmixing
+#: or scan file, a PNG picture
+_SIGNATURES = {".h5": (b"\x89HDF\r\n\x1a\n", "an HDF5 file"), "/file": (b"\x89HDF\r\n\x1a\n", "an HDF5 file"),
+               ".png": (b"\x89PNG\r\n\x1a\n", "a PNG picture")}
+
+
+def _check_signature(part: Path, req: Request, base_url: str, state: Resume) -> None:
+    """A BadAnswer (the part discarded) when a downloaded volume, scan file or picture does not
+    begin as one does: a 200 from a proxy's or a stranger's page was kept as the volume."""
+    for ending, (signature, kind) in _SIGNATURES.items():
+        if req.path.endswith(ending):
+            with open(part, "rb") as fh:
+                head = fh.read(len(signature))
+            if head != signature:
+                state.discard()
+                raise BadAnswer(base_url, f"{req.method} {req.path}",
+                                f"the download does not begin as {kind} does (it begins {head[:16]!r})")
+
+
 def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, str]]:
     """Save the body of ``req`` at ``dest`` (module docstring: resumable, renamed into place).
 
@@ -512,6 +531,7 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
             raise error_for_status(response.status_code, f"the server answered {response.status_code}"
                                    f"{f' (to {where})' if where else ''} instead of the file",
                                    method=response.request.method, url=str(response.request.url))
+        _check_signature(state.part, req, base_url, state)
         return state.done(), response.headers.get("content-type", "")
     raise ApiError(416, "the server refused every byte range of the download, or answered another range twice")
 

@@ -258,8 +258,9 @@ def test_interrupted_download_resumes_with_range(api, server, tmp_path):
     k = len(whole) // 2
     dest = tmp_path / "volume.h5"
     part, meta = tmp_path / "volume.h5.part", tmp_path / "volume.h5.part.etag"
-    # a cut-off download: marked bytes where the first half was, with the file's validator
-    marker = bytes(b ^ 0xFF for b in whole[:k])
+    # a cut-off download: marked bytes where the first half was (after the HDF5 signature, which a
+    # downloaded volume must begin with), with the file's validator
+    marker = whole[:8] + bytes(b ^ 0xFF for b in whole[8:k])
     part.write_bytes(marker)
     meta.write_text(validator)
     api.download_volume(job_id, dest)

@@ -106,7 +106,7 @@ def test_a_partial_answer_that_does_not_continue_the_part_starts_the_download_ov
     returned as the volume. Such a 206 is discarded and the file fetched whole."""
     from fpscan.clients.http.errors import ServerUnavailable
 
-    body = bytes(range(256)) * (16 << 10)  # 4 MiB
+    body = b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * (16 << 10)  # 4 MiB, as a volume begins
 
     def whole_as_206(req: Request) -> None:
         req.head(206, {"Content-Range": f"bytes 0-{len(body) - 1}/{len(body)}", "Content-Length": len(body),
@@ -284,3 +284,23 @@ def test_an_answer_that_trickles_in_ends_after_the_timeout(tmp_path):
         with pytest.raises(ServerUnavailable, match=f"under {MIN_BODY_RATE} bytes/s"):
             api.download_volume("J1", tmp_path / "v.h5")
     assert (tmp_path / "v.h5.part").exists() and not (tmp_path / "v.h5").exists()  # kept, to resume
+
+
+def test_a_download_that_is_not_the_file_it_names_is_not_kept(tmp_path):
+    """A 200 with a web page (a proxy's login page, a stranger's server) was saved as
+    ``volume.h5`` and the command exited 0; a volume, scan file or picture that does not begin
+    with its format's signature is a ``BadAnswer``, and nothing is left at ``dest``."""
+    from fpscan.clients.http import BadAnswer
+
+    page = b"<html>please log in</html>"
+
+    def route(req: Request) -> None:
+        req.head(200, {"Content-Type": "text/html", "Content-Length": len(page)})
+        req.send(page)
+
+    with hostile_server(route) as (url, _), Client(url) as api:
+        with pytest.raises(BadAnswer, match="does not begin as an HDF5 file does"):
+            api.download_volume("J1", tmp_path / "v.h5")
+        with pytest.raises(BadAnswer, match="does not begin as a PNG picture does"):
+            api.download_mip("J1", "xy", tmp_path / "xy.png")
+    assert list(tmp_path.iterdir()) == []
