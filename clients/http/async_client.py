@@ -182,7 +182,7 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
 
         Raises
         ------
-        ApiError, ServerUnavailable
+        ApiError, ServerUnavailable, ValueError
             As :meth:`Client.events`.
         """
         async for event in self._stream(job_id, last_event_id, read_timeout):

@@ -251,6 +251,9 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
             E.g. :class:`NotFound` for an unknown job.
         ServerUnavailable
             The server cannot be reached.
+        ValueError
+            The stream sent more than ``fpscan.clients.http.waiting.MAX_EVENT_BYTES`` without an
+            event (a line that never ends: no fpscan server's).
         """
         yield from self._stream(job_id, last_event_id, read_timeout)
 
