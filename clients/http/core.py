@@ -506,6 +506,9 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
     ApiError
         A 4xx/5xx answer, or any other than 200 or 206 (a redirect: its ``Location`` named; the
         part is discarded), or 416 twice, or twice a 206 that did not continue the part.
+    BadAnswer
+        A volume, scan file or picture that does not begin with its HDF5 or PNG signature (the
+        part is discarded).
     """
     dest.parent.mkdir(parents=True, exist_ok=True)
     state = Resume(dest)
