@@ -17,8 +17,6 @@ import httpx
 
 from fpscan.clients.http.calls import AsyncCaller, Call, Download, Request
 from fpscan.clients.http.core import (
-    MAX_ANSWER_BYTES,
-    MAX_ERROR_BYTES,
     BodyCheck,
     Driver,
     Flow,
@@ -123,14 +121,13 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
         if isinstance(step, Send):
             with request_args(step.request) as args:
                 async with self._http.stream(**args) as r:
-                    return await self._bounded(r, step.request,
-                                               MAX_ANSWER_BYTES if r.status_code < 400 else MAX_ERROR_BYTES)
+                    return await self._bounded(r, step.request)
         if isinstance(step, Stream):
             req = step.request
             async with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
                 if not step.saves(r):  # a 4xx/5xx: its detail for the flow
-                    return await self._bounded(r, req, MAX_ERROR_BYTES)
-                check = BodyCheck(self.base_url, f"{req.method} {req.path}", math.inf, self.timeout, keep=False)
+                    return await self._bounded(r, req)
+                check = BodyCheck(self.base_url, req, self.timeout, cap=math.inf, keep=False)
                 with step.open(r) as fh:
                     async for chunk in r.aiter_bytes():
                         check.add(chunk)  # a trickle is dropped (the part kept: resumable)
@@ -156,14 +153,12 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
             await res
         return None
 
-    async def _bounded(self, r: httpx.Response, req: Request, cap: int) -> httpx.Response:
-        """``r``'s body read within :class:`~fpscan.clients.http.core.BodyCheck`'s bounds."""
-        check = BodyCheck(self.base_url, f"{req.method} {req.path}", cap, self.timeout)
+    async def _bounded(self, r: httpx.Response, req: Request) -> httpx.Response:
+        """``r``'s body read within :meth:`~fpscan.clients.http.core.BodyCheck.answer`'s bounds."""
+        check = BodyCheck.answer(self.base_url, req, self.timeout, r.status_code)
         async for chunk in r.aiter_bytes():
-            if r.status_code >= 400 and check.size + len(chunk) > cap:  # an error's reason: its start will do
-                check.add(chunk[: cap - check.size])
+            if check.add(chunk):
                 break
-            check.add(chunk)
         return check.response(r)
 
     # -- events and waiting

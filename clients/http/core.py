@@ -77,48 +77,63 @@ class BodyCheck:
 
     Parameters
     ----------
-    base_url, what : str
-        The server and the request (``"GET /api/jobs"``), for the errors.
-    cap : float
-        Bytes (``math.inf`` for a download, which goes to a file).
+    base_url : str
+        The server, for the errors.
+    request : Request
+        What was asked (its method and path name it in the errors).
     timeout : float
         The client's seconds per request.
+    cap : float, optional
+        Bytes (default :data:`MAX_ANSWER_BYTES`; ``math.inf`` for a download, which goes to a file).
+    cut : bool, optional
+        Past ``cap``, keep the first ``cap`` bytes and stop (an error's reason: its start will do)
+        rather than refuse the answer (default False).
     keep : bool, optional
         Keep the chunks for :meth:`response` (default True; False for a download).
 
     Attributes
     ----------
     chunks : list of bytes
-        What was read.
+        What was kept.
+    size : int
+        Bytes read.
 
     Raises
     ------
     BadAnswer
-        (From :meth:`add`) past ``cap``.
+        (From :meth:`add`) past ``cap``, unless ``cut``.
     ServerUnavailable
         (From :meth:`add`) under the minimum rate.
 
     Examples
     --------
+    >>> from fpscan.clients.http.calls import Request
     >>> from fpscan.clients.http.core import BodyCheck
-    >>> check = BodyCheck("http://h", "GET /api/jobs", cap=4, timeout=30.0)
+    >>> check = BodyCheck("http://h", Request("GET", "/api/jobs"), 30.0, cap=4)
     >>> check.add(b"[1]")
+    False
     >>> check.add(b"[2]")
     Traceback (most recent call last):
     ...
     fpscan.clients.http.errors.BadAnswer: the server at http://h answered GET /api/jobs with what this client cannot read: more than 4 bytes (an answer of fpscan's is far smaller)
     """
 
-    def __init__(self, base_url: str, what: str, cap: float, timeout: float, *, keep: bool = True) -> None:
-        self.base_url, self.what, self.cap, self.timeout, self.keep = base_url, what, cap, timeout, keep
+    def __init__(self, base_url: str, request: Request, timeout: float, *, cap: float = MAX_ANSWER_BYTES,
+                 cut: bool = False, keep: bool = True) -> None:
+        self.base_url, self.what = base_url, f"{request.method} {request.path}"
+        self.timeout, self.cap, self.cut, self.keep = timeout, cap, cut, keep
         self.chunks: list[bytes] = []
         self.size = 0
         self.start = time.monotonic()
 
-    def add(self, chunk: bytes) -> None:
-        """Keep ``chunk``, or raise past the bounds."""
+    def add(self, chunk: bytes) -> bool:
+        """Take ``chunk``, or raise past the bounds; True once ``cut`` has kept ``cap`` bytes (stop
+        reading)."""
+        full = self.size + len(chunk) > self.cap
+        if full and self.cut:
+            chunk = chunk[: int(self.cap) - self.size]
         self.size += len(chunk)
-        if self.size > self.cap:
+        if full and not self.cut:
             raise BadAnswer(self.base_url, self.what, f"more than {self.cap} bytes (an answer of fpscan's is far smaller)")
         late = time.monotonic() - self.start - self.timeout
         if late > 0 and self.size < MIN_BODY_RATE * late:
@@ -126,6 +141,7 @@ class BodyCheck:
                                                    f"({self.size} bytes in {late + self.timeout:.0f} s)")
         if self.keep:
             self.chunks.append(chunk)
+        return full
 
     def response(self, streamed: httpx.Response) -> httpx.Response:
         """The answer with the body read (decoded: its ``Content-Encoding`` dropped)."""
@@ -133,6 +149,14 @@ class BodyCheck:
                    if k.lower() not in ("content-encoding", "content-length", "transfer-encoding")]
         return httpx.Response(streamed.status_code, headers=headers, content=b"".join(self.chunks),
                               request=streamed.request)
+
+    @classmethod
+    def answer(cls, base_url: str, request: Request, timeout: float, status_code: int) -> BodyCheck:
+        """The check of an answer read into memory: an error's (``status_code`` ≥ 400) cut at
+        :data:`MAX_ERROR_BYTES`, any other refused past :data:`MAX_ANSWER_BYTES`."""
+        if status_code >= 400:
+            return cls(base_url, request, timeout, cap=MAX_ERROR_BYTES, cut=True)
+        return cls(base_url, request, timeout)
 
 
 @dataclass(frozen=True)

@@ -213,11 +213,12 @@ def _range_refusals_as_json(send: Send, scope: Scope) -> Send:
     """``send`` with Starlette's plain-text refusals of a ``Range`` header (the only 400 and 416 a
     ``FileResponse`` makes) answered as every other refusal of the API is: ``{"detail": reason}``
     in JSON, the 416's ``Content-Range: bytes */SIZE`` kept (RFC 9110 §15.5.17)."""
-    refused: list[int] = []
+    refused = False
 
     async def wrapped(message: Any) -> None:
+        nonlocal refused
         if message["type"] == "http.response.start" and message["status"] in _RANGE_REFUSALS:
-            refused.append(message["status"])
+            refused = True  # Starlette's own body follows: not sent
             body = json.dumps({"detail": _RANGE_REFUSALS[message["status"]]}).encode()
             keep = [(k, v) for k, v in message.get("headers", []) if k.lower() == b"content-range"]
             head_only = scope.get("method", "GET").upper() == "HEAD"

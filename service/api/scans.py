@@ -55,13 +55,15 @@ def start_scan(body: ScanRequest, response: Response, context: Context = Depends
     request already answered (its ``Idempotency-Key``, the same plan, scanner and preview
     wavelength) is answered with its job, even where the plan has been deleted since."""
     mgr = _scans(context)
-    asked: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
+    params: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
     if body.preview_wavelength:
-        asked["preview_wavelength"] = body.preview_wavelength
-    earlier = context.store.find_repeat(idempotency_key, "scan", asked) if idempotency_key is not None else None
-    if earlier is not None and earlier["params"].get("preview_wavelength", 0) == body.preview_wavelength:
-        response.headers["Location"] = f"/api/jobs/{earlier['id']}"
-        return job_view(earlier)
+        params["preview_wavelength"] = body.preview_wavelength
+    if idempotency_key is not None:  # (a job's params hold no preview_wavelength 0: None is its absence)
+        earlier = context.store.find_repeat(idempotency_key, "scan",
+                                            {**params, "preview_wavelength": body.preview_wavelength or None})
+        if earlier is not None:
+            response.headers["Location"] = f"/api/jobs/{earlier['id']}"
+            return job_view(earlier)
     found = context.store.get_plan(body.plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {body.plan_id}")
@@ -71,7 +73,6 @@ def start_scan(body: ScanRequest, response: Response, context: Context = Depends
     if body.preview_wavelength >= n_w:
         raise HTTPException(422, f"preview_wavelength {body.preview_wavelength} is not one of the plan's "
                                  f"{n_w} wavelengths (0..{n_w - 1})")
-    params = asked
     try:  # the plan looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, created = lifecycle.create_job(context.store, "scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:

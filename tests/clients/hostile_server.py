@@ -12,8 +12,10 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-#: what a stream sends at most, so that a client that never hangs up cannot fill the test machine
-STREAM_CAP = 64 << 20
+#: what a stream sends at most, so that a client that never hangs up cannot fill the test machine;
+#: above the client's answer cap (64 MiB) and what the sockets' buffers hold past it, so that a
+#: test of the cap sees the client hang up before this one ends the stream
+STREAM_CAP = 128 << 20
 
 RUNNING = {"id": "J1", "kind": "recon", "state": "running", "progress": {"fraction": 0.5, "stage": "reconstructing"},
            "params": {"method": "ner"}, "links": {}}

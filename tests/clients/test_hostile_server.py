@@ -11,6 +11,7 @@ from fpscan.clients.http import AsyncClient, Client
 from fpscan.clients.http.errors import WaitTimeout
 from fpscan.clients.http.waiting import MAX_EVENT_BYTES
 from tests.clients.hostile_server import RUNNING, Request, hostile_server
+from tests.waits import HANG_S
 
 
 def running_job_then(events):
@@ -64,7 +65,8 @@ def test_an_event_line_that_never_ends_is_dropped_after_a_bounded_read():
         with Client(url) as api, pytest.raises(WaitTimeout):
             api.wait("J1", timeout=3)
     streams = [r for r in requests if r.path.endswith("/events")]
-    assert streams and all(r.hung_up.is_set() for r in streams), [(r.path, r.sent) for r in streams]
+    # the server's thread notices the hang-up on its next send, maybe after the wait has returned
+    assert streams and all(r.hung_up.wait(HANG_S) for r in streams), [(r.path, r.sent) for r in streams]
     # what the client read, plus what the sockets' buffers held when it hung up
     assert max(r.sent for r in streams) < MAX_EVENT_BYTES + (16 << 20), [r.sent for r in streams]
     assert any(r.path == "/api/jobs/J1" for r in requests[requests.index(streams[0]) + 1:])  # then it polled
@@ -145,7 +147,6 @@ def test_jobs_list_all_stops_on_a_server_that_does_not_page(tmp_path):
     import subprocess
     import sys
 
-    from tests.waits import HANG_S
 
     def route(req: Request) -> None:
         req.json([{**RUNNING, "id": "J2"}, {**RUNNING, "id": "J1"}])
@@ -194,7 +195,6 @@ def test_an_answer_of_another_shape_is_one_line_not_a_traceback(tmp_path, comman
     import subprocess
     import sys
 
-    from tests.waits import HANG_S
 
     with hostile_server(route) as (url, _):
         res = subprocess.run([sys.executable, "-m", "fpscan", *command, "--server", url], capture_output=True,
@@ -228,7 +228,6 @@ def test_jobs_list_shows_a_fraction_that_is_none_as_unknown(tmp_path):
     import subprocess
     import sys
 
-    from tests.waits import HANG_S
 
     jobs = [{**RUNNING, "id": f"J{i}", "progress": {"fraction": f, "stage": "x"}}
             for i, f in enumerate(["half", float("nan"), 1e308, 0.25])]
@@ -262,6 +261,7 @@ def test_an_answer_larger_than_any_of_fpscans_is_refused_at_its_cap():
     with hostile_server(route) as (url, requests), Client(url) as api, pytest.raises(BadAnswer) as caught:
         api.list_jobs()
     assert f"more than {MAX_ANSWER_BYTES} bytes" in str(caught.value)
+    assert requests[0].hung_up.wait(HANG_S)  # the server's thread has seen the hang-up: sent is final
     assert requests[0].sent < MAX_ANSWER_BYTES + (16 << 20), requests[0].sent  # it hung up there
 
 
