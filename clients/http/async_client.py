@@ -38,7 +38,7 @@ from fpscan.clients.http.endpoints.reconstructions import Reconstructions
 from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
-from fpscan.clients.http.transport import Connection, raise_for
+from fpscan.clients.http.transport import Connection, async_bounded_head, async_transport, raise_for
 from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["AsyncClient"]
@@ -91,7 +91,8 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, headers=self.headers())
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, headers=self.headers(),
+                                       transport=async_transport())
 
     async def aclose(self) -> None:
         """Close the client's connections (leaving an ``async with`` block does it)."""
@@ -120,11 +121,12 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
     async def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
             with request_args(step.request) as args:
-                async with self._http.stream(**args) as r:
+                async with async_bounded_head(self._http.stream(**args), self.timeout) as r:
                     return await self._bounded(r, step.request)
         if isinstance(step, Stream):
             req = step.request
-            async with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
+            async with async_bounded_head(self._http.stream(req.method, req.path, params=req.params,
+                                                            headers=step.headers), self.timeout) as r:
                 if not step.saves(r):  # a 4xx/5xx: its detail for the flow
                     return await self._bounded(r, req)
                 check = BodyCheck(self.base_url, req, self.timeout, cap=math.inf, keep=False)
@@ -189,8 +191,9 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
         from httpx_sse import EventSource, aconnect_sse
 
         try:
-            async with aconnect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
-                                                                 read_timeout)) as source:
+            async with async_bounded_head(aconnect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
+                                                                                    read_timeout)),
+                                          self.timeout) as source:
                 if source.response.status_code >= 400:
                     await source.response.aread()
                     raise_for(source.response)

@@ -63,7 +63,7 @@ from fpscan.clients.http.endpoints.reconstructions import Reconstructions
 from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
-from fpscan.clients.http.transport import Connection, raise_for
+from fpscan.clients.http.transport import Connection, bounded_head, raise_for, transport
 from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["Client"]
@@ -150,7 +150,8 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self.headers())
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self.headers(),
+                                  transport=transport())
 
     def close(self) -> None:
         """Close the client's connections (leaving a ``with`` block does it)."""
@@ -178,11 +179,12 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
 
     def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
-            with request_args(step.request) as args, self._http.stream(**args) as r:
+            with request_args(step.request) as args, bounded_head(self._http.stream(**args), self.timeout) as r:
                 return self._bounded(r, step.request)
         if isinstance(step, Stream):
             req = step.request
-            with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
+            with bounded_head(self._http.stream(req.method, req.path, params=req.params, headers=step.headers),
+                              self.timeout) as r:
                 if not step.saves(r):  # a 4xx/5xx: its detail for the flow
                     return self._bounded(r, req)
                 check = BodyCheck(self.base_url, req, self.timeout, cap=math.inf, keep=False)
@@ -260,8 +262,8 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
         from httpx_sse import EventSource, connect_sse
 
         try:
-            with connect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
-                                                          read_timeout)) as source:
+            with bounded_head(connect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
+                                                                       read_timeout)), self.timeout) as source:
                 if source.response.status_code >= 400:
                     source.response.read()
                     raise_for(source.response)

@@ -7,21 +7,44 @@ here is the same for both. Downloads go to
 ``<dest>.part`` and are renamed into place when complete; one cut off by a network failure
 resumes where it stopped on the next call (HTTP ``Range`` with ``If-Range``, RFC 9110
 §14.2 / §13.1.5, so a changed file is fetched whole).
+
+An answer's head (status line and headers) must arrive whole within the client's timeout of its
+first wait for it (:func:`head_within`, :func:`transport`): httpx's timeout bounds each read, so
+a server that sent a byte of its head now and then held a call for ever (httpx has no timeout
+of a whole request: encode/httpx#1450). The body's bounds are
+:class:`fpscan.clients.http.core.BodyCheck`'s.
 """
 from __future__ import annotations
 
 import os
 import shutil
+import ssl
+import time
 import uuid
+import warnings
 import zipfile
+from collections.abc import AsyncIterator, Iterable, Iterator
+from contextlib import (
+    AbstractAsyncContextManager,
+    AbstractContextManager,
+    AsyncExitStack,
+    ExitStack,
+    asynccontextmanager,
+    contextmanager,
+)
+from contextvars import ContextVar
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, TypeVar
 
+import httpcore
 import httpx
 
 from fpscan.clients.http.errors import ServerUnavailable, error_for_status
 
-__all__ = ["Connection", "raise_for", "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
+__all__ = ["Connection", "raise_for", "head_within", "bounded_head", "async_bounded_head", "transport",
+           "async_transport", "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
+
+R = TypeVar("R")
 
 
 class Connection:
@@ -35,7 +58,10 @@ class Connection:
     token : str, optional
         Bearer token; default ``$FPSCAN_TOKEN`` (``""``: send none).
     timeout : float, optional
-        Seconds per request (default 30).
+        Seconds per request (default 30): each read waits at most this long, and an answer's
+        head (status line and headers) arrives whole within it of the request's sending
+        (:func:`head_within`); past it a body must average
+        :data:`fpscan.clients.http.core.MIN_BODY_RATE` bytes/s.
 
     Attributes
     ----------
@@ -91,6 +117,238 @@ class Connection:
         ServerUnavailable
         """
         return ServerUnavailable(self.base_url, str(exc) or type(exc).__name__)
+
+
+class _Head:
+    """The time an answer's head may take: ``seconds`` from the first read (the request sent)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = float(seconds)
+        self.deadline: float | None = None
+
+    def left(self) -> float:
+        """Seconds left (the clock starts at the first call); ReadTimeout once none are."""
+        now = time.monotonic()
+        if self.deadline is None:
+            self.deadline = now + self.seconds
+        if now >= self.deadline:
+            raise httpcore.ReadTimeout(self.reason())
+        return self.deadline - now
+
+    def reason(self) -> str:
+        return f"its answer's head (status line and headers) did not arrive whole within {self.seconds:g} s"
+
+
+#: the head bound of the requests the current thread or task makes (None: no bound)
+_HEAD: ContextVar[_Head | None] = ContextVar("fpscan_http_head", default=None)
+
+
+@contextmanager
+def head_within(seconds: float) -> Iterator[None]:
+    """Inside, every read of a :func:`transport` / :func:`async_transport` connection made by
+    this thread (or asyncio task) ends by ``seconds`` after the first: the time an answer's head
+    may take from the moment the request is sent (an upload's time does not count). Past it the
+    read raises ``httpcore.ReadTimeout`` (``httpx.ReadTimeout`` to the caller).
+
+    Parameters
+    ----------
+    seconds : float
+        s (> 0).
+
+    Raises
+    ------
+    ValueError
+        ``seconds`` not > 0.
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.transport import head_within
+    >>> with head_within(30.0):
+    ...     pass  # client.stream(...).__enter__() here: the head within 30 s
+    """
+    if not seconds > 0:
+        raise ValueError(f"an answer's head needs a time > 0 s, got {seconds!r}")
+    token = _HEAD.set(_Head(seconds))
+    try:
+        yield
+    finally:
+        _HEAD.reset(token)
+
+
+@contextmanager
+def bounded_head(answer: AbstractContextManager[R], seconds: float) -> Iterator[R]:
+    """``with answer as r`` with the head of ``answer`` (an ``httpx.Client.stream(...)`` or
+    ``httpx_sse.connect_sse(...)``) within ``seconds`` (:func:`head_within`); the body is read
+    outside that bound.
+
+    Parameters
+    ----------
+    answer : context manager
+        Entering it sends the request and reads the answer's head.
+    seconds : float
+        s (> 0).
+
+    Yields
+    ------
+    object
+        What entering ``answer`` gives.
+    """
+    with ExitStack() as stack:
+        with head_within(seconds):
+            r = stack.enter_context(answer)
+        yield r
+
+
+@asynccontextmanager
+async def async_bounded_head(answer: AbstractAsyncContextManager[R], seconds: float) -> AsyncIterator[R]:
+    """:func:`bounded_head` for an ``httpx.AsyncClient``'s answer (``async with``)."""
+    async with AsyncExitStack() as stack:
+        with head_within(seconds):
+            r = await stack.enter_async_context(answer)
+        yield r
+
+
+def _read_timeout(timeout: float | None) -> tuple[float | None, _Head | None]:
+    """A read's timeout under the head bound, and the bound where it is the shorter."""
+    head = _HEAD.get()
+    if head is None:
+        return timeout, None
+    left = head.left()
+    return (timeout, None) if timeout is not None and timeout <= left else (left, head)
+
+
+class _HeadStream(httpcore.NetworkStream):
+    """A connection whose reads keep to the head bound (:func:`head_within`)."""
+
+    def __init__(self, inner: httpcore.NetworkStream) -> None:
+        self._inner = inner
+
+    def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
+        timeout, head = _read_timeout(timeout)
+        try:
+            return self._inner.read(max_bytes, timeout)
+        except httpcore.ReadTimeout:
+            if head is None:
+                raise
+            raise httpcore.ReadTimeout(head.reason()) from None
+
+    def write(self, buffer: bytes, timeout: float | None = None) -> None:
+        self._inner.write(buffer, timeout)
+
+    def close(self) -> None:
+        self._inner.close()
+
+    def start_tls(self, ssl_context: ssl.SSLContext, server_hostname: str | None = None,
+                  timeout: float | None = None) -> httpcore.NetworkStream:
+        return _HeadStream(self._inner.start_tls(ssl_context, server_hostname, timeout))
+
+    def get_extra_info(self, info: str) -> Any:
+        return self._inner.get_extra_info(info)
+
+
+class _AsyncHeadStream(httpcore.AsyncNetworkStream):
+    """:class:`_HeadStream` for asyncio."""
+
+    def __init__(self, inner: httpcore.AsyncNetworkStream) -> None:
+        self._inner = inner
+
+    async def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
+        timeout, head = _read_timeout(timeout)
+        try:
+            return await self._inner.read(max_bytes, timeout)
+        except httpcore.ReadTimeout:
+            if head is None:
+                raise
+            raise httpcore.ReadTimeout(head.reason()) from None
+
+    async def write(self, buffer: bytes, timeout: float | None = None) -> None:
+        await self._inner.write(buffer, timeout)
+
+    async def aclose(self) -> None:
+        await self._inner.aclose()
+
+    async def start_tls(self, ssl_context: ssl.SSLContext, server_hostname: str | None = None,
+                        timeout: float | None = None) -> httpcore.AsyncNetworkStream:
+        return _AsyncHeadStream(await self._inner.start_tls(ssl_context, server_hostname, timeout))
+
+    def get_extra_info(self, info: str) -> Any:
+        return self._inner.get_extra_info(info)
+
+
+class _HeadBackend(httpcore.NetworkBackend):
+    """httpcore's network backend, its connections :class:`_HeadStream`."""
+
+    def __init__(self, inner: httpcore.NetworkBackend) -> None:
+        self._inner = inner
+
+    def connect_tcp(self, host: str, port: int, timeout: float | None = None, local_address: str | None = None,
+                    socket_options: Iterable[Any] | None = None) -> httpcore.NetworkStream:
+        return _HeadStream(self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
+
+    def connect_unix_socket(self, path: str, timeout: float | None = None,
+                            socket_options: Iterable[Any] | None = None) -> httpcore.NetworkStream:
+        return _HeadStream(self._inner.connect_unix_socket(path, timeout, socket_options))
+
+    def sleep(self, seconds: float) -> None:
+        self._inner.sleep(seconds)
+
+
+class _AsyncHeadBackend(httpcore.AsyncNetworkBackend):
+    """:class:`_HeadBackend` for asyncio."""
+
+    def __init__(self, inner: httpcore.AsyncNetworkBackend) -> None:
+        self._inner = inner
+
+    async def connect_tcp(self, host: str, port: int, timeout: float | None = None,
+                          local_address: str | None = None,
+                          socket_options: Iterable[Any] | None = None) -> httpcore.AsyncNetworkStream:
+        return _AsyncHeadStream(await self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
+
+    async def connect_unix_socket(self, path: str, timeout: float | None = None,
+                                  socket_options: Iterable[Any] | None = None) -> httpcore.AsyncNetworkStream:
+        return _AsyncHeadStream(await self._inner.connect_unix_socket(path, timeout, socket_options))
+
+    async def sleep(self, seconds: float) -> None:
+        await self._inner.sleep(seconds)
+
+
+def _wrap_backend(made: httpx.HTTPTransport | httpx.AsyncHTTPTransport, wrapper: type) -> None:
+    """Put ``made``'s connection pool on ``wrapper`` around its network backend. httpx takes no
+    backend of its own (encode/httpx#1450: a whole-request timeout belongs in httpcore), so this
+    reaches the pool httpx made (httpx 0.27-0.28, httpcore 1.x); where another version names
+    them otherwise it warns and leaves the transport as it is (the head then bound per read only)."""
+    pool = getattr(made, "_pool", None)
+    backend = getattr(pool, "_network_backend", None)
+    if backend is None:
+        warnings.warn(f"httpx {httpx.__version__} / httpcore {httpcore.__version__}: no connection pool to bound "
+                      "an answer's head on; each read is still bounded by the timeout", RuntimeWarning, stacklevel=3)
+        return
+    pool._network_backend = wrapper(backend)  # type: ignore[union-attr]
+
+
+def transport() -> httpx.HTTPTransport:
+    """The blocking client's ``httpx`` transport: httpx's own, its reads kept to the head bound
+    of :func:`head_within` (:func:`bounded_head`).
+
+    Returns
+    -------
+    httpx.HTTPTransport
+    """
+    made = httpx.HTTPTransport()
+    _wrap_backend(made, _HeadBackend)
+    return made
+
+
+def async_transport() -> httpx.AsyncHTTPTransport:
+    """:func:`transport` for ``httpx.AsyncClient``.
+
+    Returns
+    -------
+    httpx.AsyncHTTPTransport
+    """
+    made = httpx.AsyncHTTPTransport()
+    _wrap_backend(made, _AsyncHeadBackend)
+    return made
 
 
 def _detail(response: httpx.Response) -> Any:

@@ -304,3 +304,65 @@ def test_a_download_that_is_not_the_file_it_names_is_not_kept(tmp_path):
         with pytest.raises(BadAnswer, match="does not begin as a PNG picture does"):
             api.download_mip("J1", "xy", tmp_path / "xy.png")
     assert list(tmp_path.iterdir()) == []
+
+
+def trickled_head(req: Request) -> None:
+    """A status line, then a header byte every 0.2 s: each read waits less than any timeout."""
+    req.send(b"HTTP/1.1 200 X\r\nX-Slow: ")
+    while req.send(b"x"):
+        req.hung_up.wait(0.2)
+
+
+@pytest.mark.timeout(120)
+def test_an_answer_whose_head_trickles_in_ends_after_the_timeout(tmp_path):
+    """httpx's timeout bounds each read, and the body's minimum rate starts once the head has
+    arrived: a server sending a byte of its headers now and then held every call (a JSON answer,
+    a download, a job's event stream; both clients) for ever. The head now arrives whole within
+    the client's timeout of the request's sending, or the call raises ``ServerUnavailable``."""
+    from fpscan.clients.http.errors import ServerUnavailable
+
+    said = "answer's head .* did not arrive whole within 1 s"
+    with hostile_server(trickled_head) as (url, requests):
+        with Client(url, timeout=1.0) as api:
+            with pytest.raises(ServerUnavailable, match=said):
+                api.list_jobs()
+            with pytest.raises(ServerUnavailable, match=said):
+                api.download_volume("J1", tmp_path / "v.h5")
+            with pytest.raises(ServerUnavailable, match=said):
+                next(api.events("J1"))
+
+        async def main() -> None:
+            async with AsyncClient(url, timeout=1.0) as api:
+                with pytest.raises(ServerUnavailable, match=said):
+                    await api.list_jobs()
+                with pytest.raises(ServerUnavailable, match=said):
+                    await api.events("J1").__anext__()
+
+        asyncio.run(main())
+        assert not (tmp_path / "v.h5").exists()
+        assert len(requests) >= 5 and all(r.hung_up.wait(HANG_S) for r in requests)  # the client hung up on each
+
+
+@pytest.mark.timeout(120)
+def test_an_upload_s_time_is_not_the_head_s():
+    """The head's time counts from the request's sending: an upload that takes longer than the
+    timeout is answered, as long as its answer's head then comes within it."""
+    import time
+
+    from fpscan.clients.http.transport import bounded_head, transport
+
+    def route(req: Request) -> None:
+        req.json({"ok": True})
+
+    with hostile_server(route) as (url, _):
+        import httpx
+
+        def slow_body():
+            for _ in range(4):
+                time.sleep(1.5)  # at least 6 s of upload against a head time of 5 s
+                yield b"x" * 1000
+
+        with httpx.Client(base_url=url, timeout=5.0, transport=transport()) as http:
+            with bounded_head(http.stream("POST", "/upload", content=slow_body(),
+                                          headers={"Content-Length": "4000"}), 5.0) as r:
+                assert r.status_code == 200 and r.read() == b'{"ok": true}'
