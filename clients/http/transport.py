@@ -16,6 +16,7 @@ of a whole request: encode/httpx#1450). The body's bounds are
 """
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import ssl
@@ -74,7 +75,7 @@ class Connection:
     Raises
     ------
     ValueError
-        A URL that is not http(s).
+        A URL that is not http(s); a timeout that is not a finite number > 0.
 
     Examples
     --------
@@ -82,6 +83,10 @@ class Connection:
     >>> c = Connection("http://127.0.0.1:8000/", token="s3cret")
     >>> c.base_url, c.headers()["Authorization"]
     ('http://127.0.0.1:8000', 'Bearer s3cret')
+    >>> Connection("http://127.0.0.1:8000", timeout=None)
+    Traceback (most recent call last):
+    ...
+    ValueError: a client's timeout is a finite number of seconds > 0, not None
     """
 
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
@@ -89,9 +94,11 @@ class Connection:
         base_url = base_url or os.environ.get("FPSCAN_SERVER") or "http://127.0.0.1:8000"
         if not base_url.startswith(("http://", "https://")):
             raise ValueError(f"server URL must start with http:// or https://, not {base_url!r}")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout < math.inf:
+            raise ValueError(f"a client's timeout is a finite number of seconds > 0, not {timeout!r}")
         self.base_url = base_url.rstrip("/")
         self.token = token if token is not None else os.environ.get("FPSCAN_TOKEN") or None
-        self.timeout = timeout
+        self.timeout = float(timeout)
 
     def headers(self) -> dict[str, str]:
         """The headers of every request: ``Accept`` and, with a token, ``Authorization``.
