@@ -12,7 +12,8 @@ An answer's head (status line and headers) must arrive whole within the client's
 first wait for it (:func:`head_within`, :func:`transport`): httpx's timeout bounds each read, so
 a server that sent a byte of its head now and then held a call for ever (httpx has no timeout
 of a whole request: encode/httpx#1450). The body's bounds are
-:class:`fpscan.clients.http.core.BodyCheck`'s.
+:class:`fpscan.clients.http.core.BodyCheck`'s; a wait's event stream ends its reads by the
+wait's deadline (:func:`reads_until`).
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ import httpx
 
 from fpscan.clients.http.errors import ServerUnavailable, error_for_status
 
-__all__ = ["Connection", "raise_for", "head_within", "bounded_head", "async_bounded_head", "transport",
+__all__ = ["Connection", "raise_for", "head_within", "reads_until", "bounded_head", "async_bounded_head", "transport",
            "async_transport", "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
 
 R = TypeVar("R")
@@ -126,28 +127,34 @@ class Connection:
         return ServerUnavailable(self.base_url, str(exc) or type(exc).__name__)
 
 
-class _Head:
-    """The time an answer's head may take: ``seconds`` from the first read (the request sent)."""
+class _ReadBound:
+    """The time the reads inside a block may take: until ``deadline`` (``time.monotonic()`` s), or
+    ``seconds`` from the first read; ``reason`` is the ReadTimeout's past it."""
 
-    def __init__(self, seconds: float) -> None:
-        self.seconds = float(seconds)
-        self.deadline: float | None = None
+    def __init__(self, reason: str, *, seconds: float = math.inf, deadline: float | None = None) -> None:
+        self.reason, self.seconds, self.deadline = reason, float(seconds), deadline
 
     def left(self) -> float:
-        """Seconds left (the clock starts at the first call); ReadTimeout once none are."""
+        """Seconds left (a relative bound's clock starts at the first call); ReadTimeout once none are."""
         now = time.monotonic()
         if self.deadline is None:
             self.deadline = now + self.seconds
         if now >= self.deadline:
-            raise httpcore.ReadTimeout(self.reason())
+            raise httpcore.ReadTimeout(self.reason)
         return self.deadline - now
 
-    def reason(self) -> str:
-        return f"its answer's head (status line and headers) did not arrive whole within {self.seconds:g} s"
+
+#: the read bound of the current thread or asyncio task (None: each read's timeout alone)
+_BOUND: ContextVar[_ReadBound | None] = ContextVar("fpscan_http_read_bound", default=None)
 
 
-#: the head bound of the requests the current thread or task makes (None: no bound)
-_HEAD: ContextVar[_Head | None] = ContextVar("fpscan_http_head", default=None)
+@contextmanager
+def _bound(bound: _ReadBound) -> Iterator[None]:
+    token = _BOUND.set(bound)
+    try:
+        yield
+    finally:
+        _BOUND.reset(token)
 
 
 @contextmanager
@@ -175,11 +182,37 @@ def head_within(seconds: float) -> Iterator[None]:
     """
     if not seconds > 0:
         raise ValueError(f"an answer's head needs a time > 0 s, got {seconds!r}")
-    token = _HEAD.set(_Head(seconds))
-    try:
+    with _bound(_ReadBound(f"its answer's head (status line and headers) did not arrive whole within {seconds:g} s",
+                           seconds=seconds)):
         yield
-    finally:
-        _HEAD.reset(token)
+
+
+@contextmanager
+def reads_until(deadline: float | None, reason: str) -> Iterator[None]:
+    """Inside, every read of a :func:`transport` / :func:`async_transport` connection made by
+    this thread (or asyncio task) ends by ``deadline``, whatever its own timeout: a wait's
+    deadline on its event stream, which a keep-alive comment would otherwise outrun by up to its
+    interval. Past it the read raises ``httpcore.ReadTimeout`` with ``reason``.
+
+    Parameters
+    ----------
+    deadline : float or None
+        ``time.monotonic()`` s (None: no bound).
+    reason : str
+        The ReadTimeout's message.
+
+    Examples
+    --------
+    >>> import time
+    >>> from fpscan.clients.http.transport import reads_until
+    >>> with reads_until(time.monotonic() + 5.0, "the wait's deadline passed"):
+    ...     pass  # next(response.iter_text()) here: back by the deadline
+    """
+    if deadline is None:
+        yield
+        return
+    with _bound(_ReadBound(reason, deadline=deadline)):
+        yield
 
 
 @contextmanager
@@ -215,29 +248,29 @@ async def async_bounded_head(answer: AbstractAsyncContextManager[R], seconds: fl
         yield r
 
 
-def _read_timeout(timeout: float | None) -> tuple[float | None, _Head | None]:
-    """A read's timeout under the head bound, and the bound where it is the shorter."""
-    head = _HEAD.get()
-    if head is None:
+def _read_timeout(timeout: float | None) -> tuple[float | None, _ReadBound | None]:
+    """A read's timeout under the read bound, and the bound where it is the shorter."""
+    bound = _BOUND.get()
+    if bound is None:
         return timeout, None
-    left = head.left()
-    return (timeout, None) if timeout is not None and timeout <= left else (left, head)
+    left = bound.left()
+    return (timeout, None) if timeout is not None and timeout <= left else (left, bound)
 
 
-class _HeadStream(httpcore.NetworkStream):
-    """A connection whose reads keep to the head bound (:func:`head_within`)."""
+class _BoundedStream(httpcore.NetworkStream):
+    """A connection whose reads keep to the read bound (:func:`head_within`, :func:`reads_until`)."""
 
     def __init__(self, inner: httpcore.NetworkStream) -> None:
         self._inner = inner
 
     def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
-        timeout, head = _read_timeout(timeout)
+        timeout, bound = _read_timeout(timeout)
         try:
             return self._inner.read(max_bytes, timeout)
         except httpcore.ReadTimeout:
-            if head is None:
+            if bound is None:
                 raise
-            raise httpcore.ReadTimeout(head.reason()) from None
+            raise httpcore.ReadTimeout(bound.reason) from None
 
     def write(self, buffer: bytes, timeout: float | None = None) -> None:
         self._inner.write(buffer, timeout)
@@ -247,26 +280,26 @@ class _HeadStream(httpcore.NetworkStream):
 
     def start_tls(self, ssl_context: ssl.SSLContext, server_hostname: str | None = None,
                   timeout: float | None = None) -> httpcore.NetworkStream:
-        return _HeadStream(self._inner.start_tls(ssl_context, server_hostname, timeout))
+        return _BoundedStream(self._inner.start_tls(ssl_context, server_hostname, timeout))
 
     def get_extra_info(self, info: str) -> Any:
         return self._inner.get_extra_info(info)
 
 
-class _AsyncHeadStream(httpcore.AsyncNetworkStream):
-    """:class:`_HeadStream` for asyncio."""
+class _AsyncBoundedStream(httpcore.AsyncNetworkStream):
+    """:class:`_BoundedStream` for asyncio."""
 
     def __init__(self, inner: httpcore.AsyncNetworkStream) -> None:
         self._inner = inner
 
     async def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
-        timeout, head = _read_timeout(timeout)
+        timeout, bound = _read_timeout(timeout)
         try:
             return await self._inner.read(max_bytes, timeout)
         except httpcore.ReadTimeout:
-            if head is None:
+            if bound is None:
                 raise
-            raise httpcore.ReadTimeout(head.reason()) from None
+            raise httpcore.ReadTimeout(bound.reason) from None
 
     async def write(self, buffer: bytes, timeout: float | None = None) -> None:
         await self._inner.write(buffer, timeout)
@@ -276,32 +309,32 @@ class _AsyncHeadStream(httpcore.AsyncNetworkStream):
 
     async def start_tls(self, ssl_context: ssl.SSLContext, server_hostname: str | None = None,
                         timeout: float | None = None) -> httpcore.AsyncNetworkStream:
-        return _AsyncHeadStream(await self._inner.start_tls(ssl_context, server_hostname, timeout))
+        return _AsyncBoundedStream(await self._inner.start_tls(ssl_context, server_hostname, timeout))
 
     def get_extra_info(self, info: str) -> Any:
         return self._inner.get_extra_info(info)
 
 
-class _HeadBackend(httpcore.NetworkBackend):
-    """httpcore's network backend, its connections :class:`_HeadStream`."""
+class _BoundedBackend(httpcore.NetworkBackend):
+    """httpcore's network backend, its connections :class:`_BoundedStream`."""
 
     def __init__(self, inner: httpcore.NetworkBackend) -> None:
         self._inner = inner
 
     def connect_tcp(self, host: str, port: int, timeout: float | None = None, local_address: str | None = None,
                     socket_options: Iterable[Any] | None = None) -> httpcore.NetworkStream:
-        return _HeadStream(self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
+        return _BoundedStream(self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
 
     def connect_unix_socket(self, path: str, timeout: float | None = None,
                             socket_options: Iterable[Any] | None = None) -> httpcore.NetworkStream:
-        return _HeadStream(self._inner.connect_unix_socket(path, timeout, socket_options))
+        return _BoundedStream(self._inner.connect_unix_socket(path, timeout, socket_options))
 
     def sleep(self, seconds: float) -> None:
         self._inner.sleep(seconds)
 
 
-class _AsyncHeadBackend(httpcore.AsyncNetworkBackend):
-    """:class:`_HeadBackend` for asyncio."""
+class _AsyncBoundedBackend(httpcore.AsyncNetworkBackend):
+    """:class:`_BoundedBackend` for asyncio."""
 
     def __init__(self, inner: httpcore.AsyncNetworkBackend) -> None:
         self._inner = inner
@@ -309,11 +342,11 @@ class _AsyncHeadBackend(httpcore.AsyncNetworkBackend):
     async def connect_tcp(self, host: str, port: int, timeout: float | None = None,
                           local_address: str | None = None,
                           socket_options: Iterable[Any] | None = None) -> httpcore.AsyncNetworkStream:
-        return _AsyncHeadStream(await self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
+        return _AsyncBoundedStream(await self._inner.connect_tcp(host, port, timeout, local_address, socket_options))
 
     async def connect_unix_socket(self, path: str, timeout: float | None = None,
                                   socket_options: Iterable[Any] | None = None) -> httpcore.AsyncNetworkStream:
-        return _AsyncHeadStream(await self._inner.connect_unix_socket(path, timeout, socket_options))
+        return _AsyncBoundedStream(await self._inner.connect_unix_socket(path, timeout, socket_options))
 
     async def sleep(self, seconds: float) -> None:
         await self._inner.sleep(seconds)
@@ -323,26 +356,26 @@ def _wrap_backend(made: httpx.HTTPTransport | httpx.AsyncHTTPTransport, wrapper:
     """Put ``made``'s connection pool on ``wrapper`` around its network backend. httpx takes no
     backend of its own (encode/httpx#1450: a whole-request timeout belongs in httpcore), so this
     reaches the pool httpx made (httpx 0.27-0.28, httpcore 1.x); where another version names
-    them otherwise it warns and leaves the transport as it is (the head then bound per read only)."""
+    them otherwise it warns and leaves the transport as it is (each read then bound by its timeout only)."""
     pool = getattr(made, "_pool", None)
     backend = getattr(pool, "_network_backend", None)
     if backend is None:
         warnings.warn(f"httpx {httpx.__version__} / httpcore {httpcore.__version__}: no connection pool to bound "
-                      "an answer's head on; each read is still bounded by the timeout", RuntimeWarning, stacklevel=3)
+                      "an answer's head or a wait's deadline on; each read is still bounded by the timeout", RuntimeWarning, stacklevel=3)
         return
     pool._network_backend = wrapper(backend)  # type: ignore[union-attr]
 
 
 def transport() -> httpx.HTTPTransport:
-    """The blocking client's ``httpx`` transport: httpx's own, its reads kept to the head bound
-    of :func:`head_within` (:func:`bounded_head`).
+    """The blocking client's ``httpx`` transport: httpx's own, its reads kept to the bound of
+    :func:`head_within` (:func:`bounded_head`) or :func:`reads_until` where one is set.
 
     Returns
     -------
     httpx.HTTPTransport
     """
     made = httpx.HTTPTransport()
-    _wrap_backend(made, _HeadBackend)
+    _wrap_backend(made, _BoundedBackend)
     return made
 
 
@@ -354,7 +387,7 @@ def async_transport() -> httpx.AsyncHTTPTransport:
     httpx.AsyncHTTPTransport
     """
     made = httpx.AsyncHTTPTransport()
-    _wrap_backend(made, _AsyncHeadBackend)
+    _wrap_backend(made, _AsyncBoundedBackend)
     return made
 
 

@@ -13,8 +13,9 @@ from typing import Any, TypeVar
 
 from fpscan.clients.http.calls import field_of
 from fpscan.clients.http.errors import ApiError, JobCancelled, JobFailed
+from fpscan.clients.http.transport import reads_until
 
-__all__ = ["TERMINAL_STATES", "ProgressCallback", "MAX_EVENT_BYTES", "StreamGuard", "read_timeout", "past",
+__all__ = ["TERMINAL_STATES", "ProgressCallback", "MAX_EVENT_BYTES", "DEADLINE_PASSED", "StreamGuard", "read_timeout", "past",
            "report_snapshot", "keep_sse", "parse_event", "progress_of", "finish"]
 
 J = TypeVar("J")
@@ -30,6 +31,9 @@ ProgressCallback = Callable[[dict], Any]
 #: it the stream is malformed (a line or an event that never ends) and the wait polls instead
 MAX_EVENT_BYTES = 1 << 20
 
+#: why a wait's event stream was dropped at its deadline
+DEADLINE_PASSED = "the wait's deadline passed while the event stream was open"
+
 
 class StreamGuard:
     """What an event stream may spend: the wait's deadline and :data:`MAX_EVENT_BYTES`
@@ -37,7 +41,10 @@ class StreamGuard:
     ``httpx_sse.EventSource`` (which reads only the response's ``headers`` and its text),
     checking both on every chunk the server sends, keep-alive comments included: a comment
     yields no event, so without it a wait's deadline went unchecked while a job was quiet
-    (the server comments every 15 s), and a line that never ended grew without bound.
+    (the server comments every 15 s), and a line that never ended grew without bound. Each
+    read of the stream ends by the deadline too
+    (:func:`~fpscan.clients.http.transport.reads_until`): a read waiting for the next comment
+    outran it by up to the comments' interval.
 
     Parameters
     ----------
@@ -61,6 +68,9 @@ class StreamGuard:
     ------
     TimeoutError
         From the text iterators, once the deadline has passed.
+    httpx.ReadTimeout
+        From the text iterators, a read still waiting at the deadline (its message
+        :data:`DEADLINE_PASSED`).
     ValueError
         From the text iterators, when more than :data:`MAX_EVENT_BYTES` arrive without an event.
 
@@ -88,20 +98,30 @@ class StreamGuard:
 
     def _check(self, text: str) -> None:
         if past(self.deadline):
-            raise TimeoutError("the wait's deadline passed while the event stream was open")
+            raise TimeoutError(DEADLINE_PASSED)
         self.pending += len(text)
         if self.pending > MAX_EVENT_BYTES:
             raise ValueError(f"the event stream sent more than {MAX_EVENT_BYTES} bytes without an event")
 
     def iter_text(self) -> Any:
-        """The response's text, checked chunk by chunk."""
-        for text in self.response.iter_text():
+        """The response's text, checked chunk by chunk, each read back by the deadline."""
+        texts = self.response.iter_text()
+        while True:
+            with reads_until(self.deadline, DEADLINE_PASSED):  # set and reset inside one step of this generator
+                text = next(texts, None)
+            if text is None:
+                return
             self._check(text)
             yield text
 
     async def aiter_text(self) -> Any:
-        """The response's text (async), checked chunk by chunk."""
-        async for text in self.response.aiter_text():
+        """The response's text (async), checked chunk by chunk, each read back by the deadline."""
+        texts = self.response.aiter_text()
+        while True:
+            with reads_until(self.deadline, DEADLINE_PASSED):
+                text = await anext(texts, None)
+            if text is None:
+                return
             self._check(text)
             yield text
 

@@ -366,3 +366,35 @@ def test_an_upload_s_time_is_not_the_head_s():
             with bounded_head(http.stream("POST", "/upload", content=slow_body(),
                                           headers={"Content-Length": "4000"}), 5.0) as r:
                 assert r.status_code == 200 and r.read() == b'{"ok": true}'
+
+
+@pytest.mark.waits
+@pytest.mark.timeout(120)
+def test_wait_ends_at_its_timeout_not_at_the_next_keepalive():
+    """A wait's deadline was checked as each chunk of its event stream came: with a keep-alive
+    comment every 8 s, ``wait(timeout=9)`` read on until the comment at 16 s. Each read of the
+    stream now ends by the deadline, so the wait ends before the server sends that comment."""
+    interval = 8.0
+    late: list[Request] = []
+
+    def sparse_keepalives(req: Request) -> None:
+        for k in range(3):
+            if k == 2:
+                late.append(req)  # the comment after the deadline: the wait should be over by now
+            if not req.send(b": keep-alive\n\n") or req.hung_up.wait(interval):
+                return
+
+    with hostile_server(running_job_then(sparse_keepalives)) as (url, requests):
+        with Client(url) as api, pytest.raises(WaitTimeout, match="still running after 9"):
+            api.wait("J1", timeout=9)
+        assert not late, "the wait read on past its deadline, to the next keep-alive"
+        before = len(requests)
+
+        async def main() -> None:
+            async with AsyncClient(url) as api:
+                await api.wait("J1", timeout=9)
+
+        with pytest.raises(WaitTimeout, match="still running after 9"):
+            asyncio.run(main())
+        assert not set(map(id, late)) & set(map(id, requests[before:])), \
+            "the async wait read on past its deadline, to the next keep-alive"
