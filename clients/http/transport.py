@@ -169,6 +169,11 @@ def head_within(seconds: float) -> Iterator[None]:
     seconds : float
         s (> 0).
 
+    Returns
+    -------
+    context manager
+        The bound, set on entering and taken off on leaving.
+
     Raises
     ------
     ValueError
@@ -201,6 +206,11 @@ def reads_until(deadline: float | None, reason: str) -> Iterator[None]:
     reason : str
         The ReadTimeout's message.
 
+    Returns
+    -------
+    context manager
+        The bound, set on entering and taken off on leaving.
+
     Examples
     --------
     >>> import time
@@ -228,10 +238,20 @@ def bounded_head(answer: AbstractContextManager[R], seconds: float) -> Iterator[
     seconds : float
         s (> 0).
 
-    Yields
-    ------
-    object
-        What entering ``answer`` gives.
+    Returns
+    -------
+    context manager
+        Entered, what entering ``answer`` gives (an ``httpx.Response``, an ``httpx_sse.EventSource``).
+
+    Examples
+    --------
+    >>> import httpx
+    >>> from fpscan.clients.http.transport import bounded_head
+    >>> http = httpx.Client(transport=httpx.MockTransport(lambda request: httpx.Response(200, json=[])))
+    >>> with bounded_head(http.stream("GET", "http://h/api/jobs"), 30.0) as r:
+    ...     r.status_code, r.read()
+    (200, b'[]')
+    >>> http.close()
     """
     with ExitStack() as stack:
         with head_within(seconds):
@@ -241,7 +261,31 @@ def bounded_head(answer: AbstractContextManager[R], seconds: float) -> Iterator[
 
 @asynccontextmanager
 async def async_bounded_head(answer: AbstractAsyncContextManager[R], seconds: float) -> AsyncIterator[R]:
-    """:func:`bounded_head` for an ``httpx.AsyncClient``'s answer (``async with``)."""
+    """:func:`bounded_head` for an ``httpx.AsyncClient``'s answer (``async with``).
+
+    Parameters
+    ----------
+    answer : async context manager
+        Entering it sends the request and reads the answer's head.
+    seconds : float
+        s (> 0).
+
+    Returns
+    -------
+    async context manager
+        Entered, what entering ``answer`` gives.
+
+    Examples
+    --------
+    >>> import asyncio, httpx
+    >>> from fpscan.clients.http.transport import async_bounded_head
+    >>> async def jobs():
+    ...     async with httpx.AsyncClient(transport=httpx.MockTransport(lambda request: httpx.Response(200))) as http:
+    ...         async with async_bounded_head(http.stream("GET", "http://h/api/jobs"), 30.0) as r:
+    ...             return r.status_code
+    >>> asyncio.run(jobs())
+    200
+    """
     async with AsyncExitStack() as stack:
         with head_within(seconds):
             r = await stack.enter_async_context(answer)
@@ -373,6 +417,13 @@ def transport() -> httpx.HTTPTransport:
     Returns
     -------
     httpx.HTTPTransport
+
+    Examples
+    --------
+    >>> import httpx
+    >>> from fpscan.clients.http.transport import transport
+    >>> with httpx.Client(base_url="http://127.0.0.1:8000", timeout=30.0, transport=transport()) as http:
+    ...     pass  # with bounded_head(http.stream("GET", "/api/health"), 30.0) as r: ...
     """
     made = httpx.HTTPTransport()
     _wrap_backend(made, _BoundedBackend)
@@ -385,6 +436,13 @@ def async_transport() -> httpx.AsyncHTTPTransport:
     Returns
     -------
     httpx.AsyncHTTPTransport
+
+    Examples
+    --------
+    >>> import httpx
+    >>> from fpscan.clients.http.transport import async_transport
+    >>> isinstance(async_transport(), httpx.AsyncHTTPTransport)
+    True
     """
     made = httpx.AsyncHTTPTransport()
     _wrap_backend(made, _AsyncBoundedBackend)
