@@ -197,7 +197,7 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
                 if source.response.status_code >= 400:
                     await source.response.aread()
                     raise_for(source.response)
-                guard = StreamGuard(source.response, deadline)
+                guard = StreamGuard(source.response, deadline, read_timeout)
                 async for sse in EventSource(guard).aiter_sse():  # type: ignore[arg-type]
                     guard.event()
                     if (event := sse_event(sse)) is not None:

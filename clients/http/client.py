@@ -251,7 +251,8 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
             The server cannot be reached.
         ValueError
             The stream sent more than ``fpscan.clients.http.waiting.MAX_EVENT_BYTES`` without an
-            event (a line that never ends: no fpscan server's).
+            event, or a line begun that does not end within ``read_timeout`` (a line that never
+            ends: no fpscan server's).
         """
         yield from self._stream(job_id, last_event_id, read_timeout)
 
@@ -267,7 +268,7 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
                 if source.response.status_code >= 400:
                     source.response.read()
                     raise_for(source.response)
-                guard = StreamGuard(source.response, deadline)
+                guard = StreamGuard(source.response, deadline, read_timeout)
                 for sse in EventSource(guard).iter_sse():  # type: ignore[arg-type]
                     guard.event()
                     if (event := sse_event(sse)) is not None:

@@ -44,7 +44,9 @@ class StreamGuard:
     (the server comments every 15 s), and a line that never ended grew without bound. Each
     read of the stream ends by the deadline too
     (:func:`~fpscan.clients.http.transport.reads_until`): a read waiting for the next comment
-    outran it by up to the comments' interval.
+    outran it by up to the comments' interval. And a line begun must end within ``line_s`` s,
+    as a read must bring a byte within its timeout: a server sending a byte of one line now and
+    then held a wait without a deadline for ever.
 
     Parameters
     ----------
@@ -52,6 +54,8 @@ class StreamGuard:
         The event stream's response.
     deadline : float or None
         ``time.monotonic()`` s past which the stream is dropped (None: none).
+    line_s : float or None, optional
+        s within which a line begun must end (the stream's read timeout; None: no bound).
 
     Attributes
     ----------
@@ -63,6 +67,10 @@ class StreamGuard:
         As given.
     pending : int
         Characters received since the last event.
+    line_s : float or None
+        As given.
+    line_open : float or None
+        When the line not yet ended began (``time.monotonic()`` s; None: every line so far ended).
 
     Raises
     ------
@@ -72,7 +80,8 @@ class StreamGuard:
         From the text iterators, a read still waiting at the deadline (its message
         :data:`DEADLINE_PASSED`).
     ValueError
-        From the text iterators, when more than :data:`MAX_EVENT_BYTES` arrive without an event.
+        From the text iterators, when more than :data:`MAX_EVENT_BYTES` arrive without an event,
+        or a line begun does not end within ``line_s``.
 
     Examples
     --------
@@ -86,11 +95,12 @@ class StreamGuard:
     TimeoutError: the wait's deadline passed while the event stream was open
     """
 
-    def __init__(self, response: Any, deadline: float | None = None) -> None:
+    def __init__(self, response: Any, deadline: float | None = None, line_s: float | None = None) -> None:
         self.response = response
         self.headers = response.headers
-        self.deadline = deadline
+        self.deadline, self.line_s = deadline, line_s
         self.pending = 0
+        self.line_open: float | None = None  # when the line still open began (None: none is)
 
     def event(self) -> None:
         """An event was decoded: the byte count starts again."""
@@ -99,6 +109,14 @@ class StreamGuard:
     def _check(self, text: str) -> None:
         if past(self.deadline):
             raise TimeoutError(DEADLINE_PASSED)
+        now = time.monotonic()
+        if text.endswith(("\n", "\r")):
+            self.line_open = None  # every line so far ended
+        elif "\n" in text or "\r" in text or self.line_open is None:
+            self.line_open = now  # a line begun with this text
+        elif self.line_s is not None and now - self.line_open > self.line_s:
+            raise ValueError(f"the event stream sent a line that did not end in {now - self.line_open:.1f} s "
+                             f"(its read timeout: {self.line_s:g} s)")
         self.pending += len(text)
         if self.pending > MAX_EVENT_BYTES:
             raise ValueError(f"the event stream sent more than {MAX_EVENT_BYTES} bytes without an event")

@@ -398,3 +398,29 @@ def test_wait_ends_at_its_timeout_not_at_the_next_keepalive():
             asyncio.run(main())
         assert not set(map(id, late)) & set(map(id, requests[before:])), \
             "the async wait read on past its deadline, to the next keep-alive"
+
+
+def trickled_line(req: Request) -> None:
+    """Part of an event line, a byte every 0.3 s, never ended: each read brings a byte in time."""
+    req.send(b"data: ")
+    while req.send(b"x"):
+        req.hung_up.wait(0.3)
+
+
+@pytest.mark.timeout(120)
+def test_an_event_line_that_trickles_and_never_ends_is_dropped_after_the_read_timeout():
+    """``MAX_EVENT_BYTES`` bounds an unended line's bytes, not its time: a server sending a byte of
+    one line now and then held ``events`` (and a ``wait`` without a deadline) for ever. A line
+    begun must end within the stream's read timeout, as a read must bring a byte within it."""
+    with hostile_server(running_job_then(trickled_line)) as (url, requests):
+        with Client(url) as api, pytest.raises(ValueError, match="a line that did not end in"):
+            next(api.events("J1", read_timeout=2))
+
+        async def main() -> None:
+            async with AsyncClient(url) as api:
+                await api.events("J1", read_timeout=2).__anext__()
+
+        with pytest.raises(ValueError, match="a line that did not end in"):
+            asyncio.run(main())
+        streams = [r for r in requests if r.path.startswith("/api/jobs/J1/events")]
+        assert len(streams) == 2 and all(r.hung_up.wait(HANG_S) for r in streams)
