@@ -91,7 +91,7 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, headers=self.headers(),
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=self.timeout, headers=self.headers(),
                                        transport=async_transport())
 
     async def aclose(self) -> None:

@@ -150,7 +150,7 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self.headers(),
+        self._http = httpx.Client(base_url=self.base_url, timeout=self.timeout, headers=self.headers(),
                                   transport=transport())
 
     def close(self) -> None:

@@ -95,11 +95,15 @@ class Connection:
         base_url = base_url or os.environ.get("FPSCAN_SERVER") or "http://127.0.0.1:8000"
         if not base_url.startswith(("http://", "https://")):
             raise ValueError(f"server URL must start with http:// or https://, not {base_url!r}")
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout < math.inf:
+        try:  # a number (numpy's too), not a flag or a text
+            seconds = math.nan if isinstance(timeout, (bool, str, bytes)) else float(timeout)
+        except (TypeError, ValueError):
+            seconds = math.nan
+        if not 0 < seconds < math.inf:
             raise ValueError(f"a client's timeout is a finite number of seconds > 0, not {timeout!r}")
         self.base_url = base_url.rstrip("/")
         self.token = token if token is not None else os.environ.get("FPSCAN_TOKEN") or None
-        self.timeout = float(timeout)
+        self.timeout = seconds
 
     def headers(self) -> dict[str, str]:
         """The headers of every request: ``Accept`` and, with a token, ``Authorization``.
