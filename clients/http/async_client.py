@@ -38,7 +38,7 @@ from fpscan.clients.http.endpoints.reconstructions import Reconstructions
 from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
-from fpscan.clients.http.transport import Connection, async_bounded_head, async_transport, raise_for
+from fpscan.clients.http.transport import Connection, async_bounded_head, bound_reads, raise_for
 from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["AsyncClient"]
@@ -91,8 +91,8 @@ class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Recon
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=self.timeout, headers=self.headers(),
-                                       transport=async_transport())
+        self._http = bound_reads(httpx.AsyncClient(base_url=self.base_url, timeout=self.timeout,
+                                                   headers=self.headers()))
 
     async def aclose(self) -> None:
         """Close the client's connections (leaving an ``async with`` block does it)."""

@@ -63,7 +63,7 @@ from fpscan.clients.http.endpoints.reconstructions import Reconstructions
 from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
 from fpscan.clients.http.models import Job
-from fpscan.clients.http.transport import Connection, bounded_head, raise_for, transport
+from fpscan.clients.http.transport import Connection, bound_reads, bounded_head, raise_for
 from fpscan.clients.http.waiting import ProgressCallback, StreamGuard
 
 __all__ = ["Client"]
@@ -150,8 +150,7 @@ class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstruct
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0) -> None:
         super().__init__(base_url, token=token, timeout=timeout)
-        self._http = httpx.Client(base_url=self.base_url, timeout=self.timeout, headers=self.headers(),
-                                  transport=transport())
+        self._http = bound_reads(httpx.Client(base_url=self.base_url, timeout=self.timeout, headers=self.headers()))
 
     def close(self) -> None:
         """Close the client's connections (leaving a ``with`` block does it)."""

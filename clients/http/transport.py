@@ -9,7 +9,7 @@ resumes where it stopped on the next call (HTTP ``Range`` with ``If-Range``, RFC
 §14.2 / §13.1.5, so a changed file is fetched whole).
 
 An answer's head (status line and headers) must arrive whole within the client's timeout of its
-first wait for it (:func:`head_within`, :func:`transport`): httpx's timeout bounds each read, so
+first wait for it (:func:`head_within`, :func:`bound_reads`): httpx's timeout bounds each read, so
 a server that sent a byte of its head now and then held a call for ever (httpx has no timeout
 of a whole request: encode/httpx#1450). The body's bounds are
 :class:`fpscan.clients.http.core.BodyCheck`'s; a wait's event stream ends its reads by the
@@ -43,8 +43,8 @@ import httpx
 
 from fpscan.clients.http.errors import ServerUnavailable, error_for_status
 
-__all__ = ["Connection", "raise_for", "head_within", "reads_until", "bounded_head", "async_bounded_head", "transport",
-           "async_transport", "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
+__all__ = ["Connection", "raise_for", "head_within", "reads_until", "bounded_head", "async_bounded_head", "bound_reads",
+           "Resume", "RangeMismatch", "MAX_ZIP_RATIO", "unzip_folder"]
 
 R = TypeVar("R")
 
@@ -163,7 +163,7 @@ def _bound(bound: _ReadBound) -> Iterator[None]:
 
 @contextmanager
 def head_within(seconds: float) -> Iterator[None]:
-    """Inside, every read of a :func:`transport` / :func:`async_transport` connection made by
+    """Inside, every read of a :func:`bound_reads` client's connection made by
     this thread (or asyncio task) ends by ``seconds`` after the first: the time an answer's head
     may take from the moment the request is sent (an upload's time does not count). Past it the
     read raises ``httpcore.ReadTimeout`` (``httpx.ReadTimeout`` to the caller).
@@ -198,7 +198,7 @@ def head_within(seconds: float) -> Iterator[None]:
 
 @contextmanager
 def reads_until(deadline: float | None, reason: str) -> Iterator[None]:
-    """Inside, every read of a :func:`transport` / :func:`async_transport` connection made by
+    """Inside, every read of a :func:`bound_reads` client's connection made by
     this thread (or asyncio task) ends by ``deadline``, whatever its own timeout: a wait's
     deadline on its event stream, which a keep-alive comment would otherwise outrun by up to its
     interval. Past it the read raises ``httpcore.ReadTimeout`` with ``reason``.
@@ -400,7 +400,7 @@ class _AsyncBoundedBackend(httpcore.AsyncNetworkBackend):
         await self._inner.sleep(seconds)
 
 
-def _wrap_backend(made: httpx.HTTPTransport | httpx.AsyncHTTPTransport, wrapper: type) -> None:
+def _wrap_backend(made: object, wrapper: type) -> None:
     """Put ``made``'s connection pool on ``wrapper`` around its network backend. httpx takes no
     backend of its own (encode/httpx#1450: a whole-request timeout belongs in httpcore), so this
     reaches the pool httpx made (httpx 0.27-0.28, httpcore 1.x); where another version names
@@ -411,46 +411,47 @@ def _wrap_backend(made: httpx.HTTPTransport | httpx.AsyncHTTPTransport, wrapper:
         warnings.warn(f"httpx {httpx.__version__} / httpcore {httpcore.__version__}: no connection pool to bound "
                       "an answer's head or a wait's deadline on; each read is still bounded by the timeout", RuntimeWarning, stacklevel=3)
         return
-    pool._network_backend = wrapper(backend)  # type: ignore[union-attr]
+    if not isinstance(backend, wrapper):
+        pool._network_backend = wrapper(backend)  # type: ignore[union-attr]
 
 
-def transport() -> httpx.HTTPTransport:
-    """The blocking client's ``httpx`` transport: httpx's own, its reads kept to the bound of
-    :func:`head_within` (:func:`bounded_head`) or :func:`reads_until` where one is set.
+Http = TypeVar("Http", httpx.Client, httpx.AsyncClient)
+
+
+def bound_reads(http: Http) -> Http:
+    """Keep the reads of every connection ``http`` makes to the bound of :func:`head_within`
+    (:func:`bounded_head`) or :func:`reads_until` where one is set.
+
+    That is every transport httpx made for the client: its own, and one per proxy it took from the
+    environment (``HTTP_PROXY``, ``HTTPS_PROXY``, ``ALL_PROXY``, less the hosts of ``NO_PROXY``).
+    httpx reads those only for a client made without a ``transport=``, so the client is made as
+    usual and its transports are bound afterwards. Binding a client twice changes nothing.
+
+    Parameters
+    ----------
+    http : httpx.Client or httpx.AsyncClient
+        A client made without ``transport=`` or ``mounts=`` of one's own (a transport that is not
+        httpx's ``HTTPTransport`` / ``AsyncHTTPTransport`` is left as it is, with a
+        ``RuntimeWarning``).
 
     Returns
     -------
-    httpx.HTTPTransport
+    httpx.Client or httpx.AsyncClient
+        ``http`` itself.
 
     Examples
     --------
     >>> import httpx
-    >>> from fpscan.clients.http.transport import transport
-    >>> with httpx.Client(base_url="http://127.0.0.1:8000", timeout=30.0, transport=transport()) as http:
+    >>> from fpscan.clients.http.transport import bound_reads, bounded_head
+    >>> with bound_reads(httpx.Client(base_url="http://127.0.0.1:8000", timeout=30.0)) as http:
     ...     pass  # with bounded_head(http.stream("GET", "/api/health"), 30.0) as r: ...
     """
-    made = httpx.HTTPTransport()
-    _wrap_backend(made, _BoundedBackend)
-    return made
-
-
-def async_transport() -> httpx.AsyncHTTPTransport:
-    """:func:`transport` for ``httpx.AsyncClient``.
-
-    Returns
-    -------
-    httpx.AsyncHTTPTransport
-
-    Examples
-    --------
-    >>> import httpx
-    >>> from fpscan.clients.http.transport import async_transport
-    >>> isinstance(async_transport(), httpx.AsyncHTTPTransport)
-    True
-    """
-    made = httpx.AsyncHTTPTransport()
-    _wrap_backend(made, _AsyncBoundedBackend)
-    return made
+    wrapper = _AsyncBoundedBackend if isinstance(http, httpx.AsyncClient) else _BoundedBackend
+    made = [getattr(http, "_transport", None), *getattr(http, "_mounts", {}).values()]
+    for transport in made:
+        if transport is not None:  # None: a NO_PROXY host, sent by the client's own transport
+            _wrap_backend(transport, wrapper)
+    return http
 
 
 def _detail(response: httpx.Response) -> Any:

@@ -344,12 +344,46 @@ def test_an_answer_whose_head_trickles_in_ends_after_the_timeout(tmp_path):
 
 
 @pytest.mark.timeout(120)
+def test_the_environment_s_proxy_is_used_and_its_answer_s_head_is_bounded(monkeypatch):
+    """A client made with a transport of its own is not given httpx's proxies from the environment:
+    the head's bound once cost a lab behind ``HTTP_PROXY`` its way to the server. The clients send
+    through the environment's proxy (here one that trickles its answer's head, so the bound must hold
+    through it too), and straight to a ``NO_PROXY`` host."""
+    from fpscan.clients.http.errors import ServerUnavailable
+
+    for name in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY", "NO_PROXY"):
+        for spelled in (name, name.lower()):
+            monkeypatch.delenv(spelled, raising=False)
+    said = "answer's head .* did not arrive whole within 1 s"
+    server = "http://fpscan.invalid:8000"  # a name no resolver knows: only the proxy can take it there
+    with hostile_server(trickled_head) as (proxy, via_proxy):
+        monkeypatch.setenv("HTTP_PROXY", proxy)
+        with Client(server, timeout=1.0) as api, pytest.raises(ServerUnavailable, match=said):
+            api.list_jobs()
+
+        async def main() -> None:
+            async with AsyncClient(server, timeout=1.0) as api:
+                with pytest.raises(ServerUnavailable, match=said):
+                    await api.list_jobs()
+
+        asyncio.run(main())
+        assert [r.path.split("?")[0] for r in via_proxy] == [f"{server}/api/jobs"] * 2  # the proxy's absolute form
+        assert all(r.hung_up.wait(HANG_S) for r in via_proxy)
+
+        with hostile_server(lambda req: req.json([])) as (direct, straight):
+            monkeypatch.setenv("NO_PROXY", "127.0.0.1")
+            with Client(direct, timeout=5.0) as api:
+                assert api.list_jobs() == []
+            assert [r.path.split("?")[0] for r in straight] == ["/api/jobs"] and len(via_proxy) == 2
+
+
+@pytest.mark.timeout(120)
 def test_an_upload_s_time_is_not_the_head_s():
     """The head's time counts from the request's sending: an upload that takes longer than the
     timeout is answered, as long as its answer's head then comes within it."""
     import time
 
-    from fpscan.clients.http.transport import bounded_head, transport
+    from fpscan.clients.http.transport import bound_reads, bounded_head
 
     def route(req: Request) -> None:
         req.json({"ok": True})
@@ -362,7 +396,7 @@ def test_an_upload_s_time_is_not_the_head_s():
                 time.sleep(1.5)  # at least 6 s of upload against a head time of 5 s
                 yield b"x" * 1000
 
-        with httpx.Client(base_url=url, timeout=5.0, transport=transport()) as http:
+        with bound_reads(httpx.Client(base_url=url, timeout=5.0)) as http:
             with bounded_head(http.stream("POST", "/upload", content=slow_body(),
                                           headers={"Content-Length": "4000"}), 5.0) as r:
                 assert r.status_code == 200 and r.read() == b'{"ok": true}'
