@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import reprlib
 from typing import Any
 
 import numpy as np
@@ -54,9 +55,9 @@ def positive(name: str, value: Any) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+        raise ValueError(f"{name} must be a number, got {_said(value)}") from None
     if not np.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        raise ValueError(f"{name} must be a finite number > 0, got {_said(value)}")
     return v
 
 
@@ -164,20 +165,33 @@ class OptionError(RefusedInput):
     """
 
 
+#: how a refused value is shown in its message: a few elements of a list, the ends of a long text (reprlib), so
+#: that a body of 64 KiB refused for one option neither builds nor sends a message of its size
+_SHOWN = reprlib.Repr()
+_SHOWN.maxstring = _SHOWN.maxother = 66
+_SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = _SHOWN.maxset = 4
+_SHOWN.maxlevel = 2
+
+
+def _said(value: Any) -> str:
+    """``repr(value)``, bounded (:data:`_SHOWN`): ``[[1, 2], [1, 2], ...]`` for a list of thousands."""
+    return _SHOWN.repr(value)
+
+
 def _number(name: str, value: Any, what: str) -> float:
     if isinstance(value, bool):
-        raise OptionError(f"{name} must be {what}, got {value!r}")
+        raise OptionError(f"{name} must be {what}, got {_said(value)}")
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise OptionError(f"{name} must be {what}, got {value!r}") from None
+        raise OptionError(f"{name} must be {what}, got {_said(value)}") from None
 
 
 def _integer(name: str, value: Any, lo: int, hi: int) -> int:
     what = f"an integer in {lo}..{hi}"
     v = _number(name, value, what)
     if not np.isfinite(v) or int(v) != v or not lo <= v <= hi:
-        raise OptionError(f"{name} must be {what}, got {value!r}")
+        raise OptionError(f"{name} must be {what}, got {_said(value)}")
     return int(v)
 
 
@@ -210,7 +224,7 @@ def check_eps(eps: Any) -> float:
     """
     e = _number("eps", eps, "a number")
     if not (EPS_RANGE[0] <= e <= EPS_RANGE[1]):
-        raise OptionError(f"eps must be in [1e-14, 1e-1], got {eps!r}")
+        raise OptionError(f"eps must be in [1e-14, 1e-1], got {_said(eps)}")
     return e
 
 
@@ -304,7 +318,7 @@ def check_dz(dz: Any) -> float:
     """
     v = _number("dz", dz, "a depth spacing in m")
     if not np.isfinite(v) or not DZ_RANGE[0] <= v <= DZ_RANGE[1]:
-        raise OptionError(f"dz must be in [1e-09, 0.1] m, got {dz!r}")
+        raise OptionError(f"dz must be in [1e-09, 0.1] m, got {_said(dz)}")
     return v
 
 
@@ -338,7 +352,7 @@ def check_lam(lam: Any) -> float:
     """
     v = _number("lam (the TV weight λ)", lam, "a number >= 0")
     if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
-        raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {lam!r}")
+        raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {_said(lam)}")
     return v
 
 
@@ -374,7 +388,7 @@ def check_bandwidth(bandwidth: Any) -> float:
     v = _number("bandwidth (the sensor's band, Hz)", bandwidth, "a number > 0")
     if not np.isfinite(v) or not BANDWIDTH_RANGE[0] <= v <= BANDWIDTH_RANGE[1]:
         raise OptionError(f"bandwidth (the sensor's band, Hz) must be in [{BANDWIDTH_RANGE[0]:.0e}, "
-                          f"{BANDWIDTH_RANGE[1]:.0e}], got {bandwidth!r}")
+                          f"{BANDWIDTH_RANGE[1]:.0e}], got {_said(bandwidth)}")
     return v
 
 
@@ -409,7 +423,7 @@ def check_tol(tol: Any) -> float:
     """
     v = _number("tol (the stopping threshold)", tol, "a number in [0, 0.5]")
     if not np.isfinite(v) or not TOL_RANGE[0] <= v <= TOL_RANGE[1]:
-        raise OptionError(f"tol (the stopping threshold) must be in [0, 0.5], got {tol!r}")
+        raise OptionError(f"tol (the stopping threshold) must be in [0, 0.5], got {_said(tol)}")
     return v
 
 
@@ -472,7 +486,7 @@ def check_time_limit(seconds: Any) -> float:
     """
     v = _number("time_limit", seconds, "a number of seconds")
     if not np.isfinite(v) or not 0 < v <= TIME_LIMIT_MAX:
-        raise OptionError(f"time_limit must be in (0, {TIME_LIMIT_MAX:g}] s, got {seconds!r}")
+        raise OptionError(f"time_limit must be in (0, {TIME_LIMIT_MAX:g}] s, got {_said(seconds)}")
     return v
 
 
@@ -508,7 +522,7 @@ def check_dtype(dtype: Any) -> np.dtype:
     try:
         dt = np.dtype(dtype)
     except (TypeError, ValueError, SyntaxError):  # NumPy's parser raises SyntaxError for "(1,2"
-        raise OptionError(f"dtype must be float32 or float64, got {dtype!r}") from None
+        raise OptionError(f"dtype must be float32 or float64, got {_said(dtype)}") from None
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise OptionError(f"dtype must be float32 or float64, got {dt}")
     return dt
@@ -609,7 +623,7 @@ def check_sound_speed_range(sound_speed_range: Any) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in sound_speed_range)
     except (TypeError, ValueError):
-        raise ValueError(f"sound_speed_range must be two speeds (c_min, c_max) in m/s, got {sound_speed_range!r}") \
+        raise ValueError(f"sound_speed_range must be two speeds (c_min, c_max) in m/s, got {_said(sound_speed_range)}") \
             from None
     if not (math.isfinite(lo) and math.isfinite(hi) and C_AUTOFOCUS_LIMITS[0] <= lo < hi <= C_AUTOFOCUS_LIMITS[1]):
         raise ValueError(f"sound_speed_range must satisfy {C_AUTOFOCUS_LIMITS[0]:g} <= c_min < c_max <= "

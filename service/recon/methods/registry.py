@@ -275,7 +275,9 @@ class Method:
         Raises
         ------
         fpscan.service.recon.checks.OptionError
-            A name another registered method takes and this one does not.
+            A name another registered method takes and this one does not; more names than this
+            method takes, counting its options' earlier names (at once, so that a body of
+            thousands of unknown names is not refused name by name, a validation error each).
 
         Examples
         --------
@@ -285,6 +287,10 @@ class Method:
         Traceback (most recent call last):
         ...
         fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: sound_speed, sound_speed_range, force, eps, ...)
+        >>> get("kwave").refuse_foreign({f"opt{i}": i for i in range(5000)})
+        Traceback (most recent call last):
+        ...
+        fpscan.service.recon.checks.OptionError: method 'kwave' takes no option 'opt0', 'opt1', 'opt2', ...: 5000 names no method takes (its options: ...)
         """
         mine = set(self.options)
         known = {name for m in METHODS.values() for name in m.options}  # once: a body may hold thousands of names
@@ -295,6 +301,14 @@ class Method:
 
             raise OptionError(f"method {self.name!r} takes no option {', '.join(foreign)} "
                               f"(its options: {', '.join(self.options)})")
+        taken = mine | {old for old, new in DEPRECATED_NAMES.items() if new in mine}
+        if len(options) > len(taken):  # names no method takes, more than it has options: one refusal, not one each
+            from fpscan.service.recon.checks import OptionError
+
+            unknown = [k for k in options if k not in taken]
+            named = ", ".join(repr(k)[:40] for k in unknown[:3])
+            raise OptionError(f"method {self.name!r} takes no option {named}{', ...' if len(unknown) > 3 else ''}: "
+                              f"{len(unknown)} names no method takes (its options: {', '.join(self.options)})")
 
     def upsample(self, options: dict | MethodOptions) -> int:
         """The lateral upsampling factor of its image for the request's ``options``: their
