@@ -171,7 +171,7 @@ def test_thousands_of_names_no_method_takes_are_one_refusal(shared_server):
     with shared_server.client() as api:
         r = api.post("/api/reconstructions", json=body)
     assert r.status_code == 422 and "3000 names no method takes" in r.json()["detail"], r.text[:400]
-    # as many names as the method has options, one unknown among them: refused by its name, as before
+    # a few names, one unknown among them: refused by its name, as before
     few = {"opt0": 1, "eps": 1e-6}
     assert "opt0" in (_library("ner", few) or ""), _library("ner", few)
 

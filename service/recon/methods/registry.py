@@ -275,8 +275,8 @@ class Method:
         Raises
         ------
         fpscan.service.recon.checks.OptionError
-            A name another registered method takes and this one does not; more names than this
-            method takes, counting its options' earlier names (at once, so that a body of
+            A name another registered method takes and this one does not; more names than all
+            registered methods take together, earlier names included (at once, so that a body of
             thousands of unknown names is not refused name by name, a validation error each).
 
         Examples
@@ -301,11 +301,11 @@ class Method:
 
             raise OptionError(f"method {self.name!r} takes no option {', '.join(foreign)} "
                               f"(its options: {', '.join(self.options)})")
-        taken = mine | {old for old, new in DEPRECATED_NAMES.items() if new in mine}
-        if len(options) > len(taken):  # names no method takes, more than it has options: one refusal, not one each
+        if len(options) > len(known) + len(DEPRECATED_NAMES):  # more than every method's names (None values
+            # included: a default): names no method takes, refused at once rather than one validation error each
             from fpscan.service.recon.checks import OptionError
 
-            unknown = [k for k in options if k not in taken]
+            unknown = [k for k in options if DEPRECATED_NAMES.get(k, k) not in known]
             named = ", ".join(repr(k)[:40] for k in unknown[:3])
             raise OptionError(f"method {self.name!r} takes no option {named}{', ...' if len(unknown) > 3 else ''}: "
                               f"{len(unknown)} names no method takes (its options: {', '.join(self.options)})")
